@@ -1,0 +1,8 @@
+//! fdmlab-datasets: every byte format fdmlab reads or writes — G-code writers and
+//! readers, log and CSV parsers, score ingest, firmware/daemon export text.
+//! Parsers report the file, line/row and field of bad input.
+
+pub mod error;
+pub mod gcode;
+
+pub use error::DatasetError;

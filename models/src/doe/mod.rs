@@ -1,0 +1,1 @@
+//! Design of experiments: orthogonal arrays and Taguchi analysis.

@@ -1,0 +1,1 @@
+//! Extrusion: linear pressure model (pressure advance) and the calibration twin.

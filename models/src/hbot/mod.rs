@@ -1,0 +1,1 @@
+//! H-Bot belt drive: kinematics, step generation, dynamics twin, identification, compensation.

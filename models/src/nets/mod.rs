@@ -1,0 +1,1 @@
+//! burn networks (flex backend).

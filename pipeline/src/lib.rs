@@ -1,0 +1,1 @@
+//! fdmlab-pipeline: spec schema, stage graph, content-addressed store, runs, export.

@@ -1,0 +1,2 @@
+//! fdmlab-reports: renders result types into documents — Markdown, HTML,
+//! LaTeX tables and SVG plots.
