@@ -4,5 +4,6 @@
 
 pub mod error;
 pub mod gcode;
+pub mod hbot;
 
 pub use error::DatasetError;

@@ -8,6 +8,7 @@ pub mod mixing;
 pub mod params;
 pub mod profile;
 pub mod sensor;
+pub mod study;
 pub mod twin;
 
 pub use params::{HbotParams, Param, StepperDrive};
