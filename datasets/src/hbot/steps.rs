@@ -171,7 +171,7 @@ mod tests {
                 e += de;
                 let to = [x, y, 0.0, e];
                 if let Some(b) = p.move_to(1, from, to, 100.0).expect("on bed") {
-                    for c in 0..6 { sum[c] += b.steps[c]; }
+                    for (s, d) in sum.iter_mut().zip(b.steps) { *s += d; }
                 }
                 from = to;
             }

@@ -52,9 +52,9 @@ impl Iterator for Bresenham {
         }
         self.tick += 1;
         let mut out = [0i8; 6];
-        for c in 0..6 {
+        for (c, o) in out.iter_mut().enumerate() {
             if self.err[c] >= 0 {
-                out[c] = self.dir[c];
+                *o = self.dir[c];
                 self.err[c] += 2 * (self.delta[c] - self.major);
             } else {
                 self.err[c] += 2 * self.delta[c];

@@ -260,7 +260,7 @@ pub struct DirectFit {
 /// positive and the finite-difference step is relative.
 pub fn direct_fit(start: &HbotParams, free: &[Param], data: &[Measurement]) -> Result<DirectFit, ModelError> {
     let p0: Vec<f64> = free.iter().map(|&p| start.get(p)).collect();
-    if let Some(i) = p0.iter().position(|v| !(*v > 0.0)) {
+    if let Some(i) = p0.iter().position(|v| v.is_nan() || *v <= 0.0) {
         return Err(ModelError::invalid(free[i].name(), p0[i], "direct fit needs a positive start value"));
     }
     let set = |u: &[f64]| free.iter().zip(&p0).zip(u).fold(*start, |p, ((&f, &v0), &ui)| p.with(f, v0 * (ui - 1.0).exp()));
