@@ -43,6 +43,12 @@ enum Command {
     /// Performance benchmarks (use a release build).
     #[command(subcommand)]
     Bench(cmd::bench::BenchCommand),
+    /// H-Bot twin: simulate a move, convert G-code (with M11) to step streams.
+    #[command(subcommand)]
+    Hbot(cmd::hbot::HbotCommand),
+    /// Taguchi orthogonal arrays and the analysis of their results.
+    #[command(subcommand)]
+    Taguchi(cmd::hbot::TaguchiCommand),
     /// Print shell completions.
     Completions {
         /// Shell to generate for.
@@ -62,6 +68,8 @@ fn main() -> ExitCode {
         Command::Gc => cmd::runs::gc(&ctx),
         Command::Cat(a) => cmd::runs::cat(a, &ctx),
         Command::Bench(c) => cmd::bench::bench(c, &ctx),
+        Command::Hbot(c) => cmd::hbot::hbot(c, &ctx),
+        Command::Taguchi(c) => cmd::hbot::taguchi(c, &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

@@ -5,6 +5,7 @@
 pub mod csv;
 pub mod error;
 pub mod gcode;
+pub mod hbot;
 pub mod thermal_log;
 
 pub use error::DatasetError;

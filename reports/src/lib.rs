@@ -6,6 +6,7 @@
 mod error;
 mod plot;
 mod table;
+pub mod hbot;
 pub mod thermal;
 
 pub use error::ReportError;

@@ -18,12 +18,15 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         repeat: u32,
     },
+    /// H-Bot twin: a 1 s move, and screening + L27 + confirmation.
+    Hbot(super::hbot::BenchArgs),
 }
 
 /// Dispatch a bench.
 pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
+        BenchCommand::Hbot(a) => super::hbot::bench(a, ctx),
     }
 }
 

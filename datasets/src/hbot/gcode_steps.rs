@@ -1,0 +1,121 @@
+//! G-code (with `M11` colour mixing) → motor step streams of the H-Bot, on top of the
+//! shared G-code reader and modal machine. Refuses moves off the bed and
+//! temperatures over the limits.
+
+use super::steps::{StepBlock, StepConfig, StepPlanner};
+use crate::gcode::{parse, Command, Machine};
+use crate::DatasetError;
+use fdmlab_models::hbot::mixing::MixRatio;
+
+/// Hotend temperature limit (°C) for M104/M109.
+pub const MAX_HOTEND_C: f64 = 300.0;
+/// Bed temperature limit (°C) for M140/M190.
+pub const MAX_BED_C: f64 = 120.0;
+/// Feed used until the program sets one (mm/s).
+pub const DEFAULT_FEED_MM_S: f64 = 50.0;
+
+/// The step stream of a program.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepStream {
+    pub blocks: Vec<StepBlock>,
+    /// Number of `M11` commands applied.
+    pub mix_changes: usize,
+}
+
+/// Mixing ratio of an `M11 F<r0> S<r1>` line (S defaults to 0, F is required).
+pub fn mix_from_m11(cmd: &Command, file: &str) -> Result<MixRatio, DatasetError> {
+    let r0 = cmd.word('F').ok_or_else(|| DatasetError::parse(file, cmd.line, "F", "M11 needs F<r0> (ratio of extruder 0)"))?;
+    let r1 = cmd.word('S').unwrap_or(0.0);
+    MixRatio::from_m11(r0, r1).map_err(|e| DatasetError::parse(file, cmd.line, "M11", e.to_string()))
+}
+
+fn check_temperature(cmd: &Command, file: &str) -> Result<(), DatasetError> {
+    let limit = match cmd.name.as_str() {
+        "M104" | "M109" => MAX_HOTEND_C,
+        "M140" | "M190" => MAX_BED_C,
+        _ => return Ok(()),
+    };
+    for letter in ['S', 'R'] {
+        if let Some(t) = cmd.word(letter) {
+            if !(t.is_finite() && t <= limit) {
+                return Err(DatasetError::parse(file, cmd.line, &letter.to_string(), format!("{} {letter}{t} exceeds the {limit} °C limit; refused", cmd.name)));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Convert a program to step blocks.
+pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepStream, DatasetError> {
+    let program = parse(text, file)?;
+    let mut machine = Machine::default();
+    let mut planner = StepPlanner::new(cfg, file)?;
+    let mut out = StepStream { blocks: Vec::new(), mix_changes: 0 };
+    for cmd in &program {
+        check_temperature(cmd, file)?;
+        if cmd.name == "M11" {
+            planner.set_mix(mix_from_m11(cmd, file)?);
+            out.mix_changes += 1;
+            continue;
+        }
+        if let Some(mv) = machine.apply(cmd) {
+            let feed = if mv.feed_mm_s > 0.0 { mv.feed_mm_s } else { DEFAULT_FEED_MM_S };
+            if let Some(b) = planner.move_to(mv.line, mv.from, mv.to, feed)? {
+                out.blocks.push(b);
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const GRADIENT: &str = "G28\nG90\nM83\nG1 X10 Y10 F3000\nM11 F0.5 S0.2\nG1 X20 Y10 E1.0\nM11 F0 S1\nG1 X20 Y20 E1.0 ; all E1\n";
+
+    #[test]
+    fn gradient_print_splits_extrusion_exactly() {
+        let s = steps_from_gcode(GRADIENT, "g.gcode", StepConfig::default()).expect("ok");
+        assert_eq!(s.mix_changes, 2);
+        assert_eq!(s.blocks.len(), 3);
+        // +10 mm x: both motors +800; 93 E steps split 0.5/0.2/0.3.
+        assert_eq!(s.blocks[1].steps, [800, 800, 0, 47, 18, 28]);
+        // +10 mm y: M1 +800, M2 −800; everything to E1.
+        assert_eq!(s.blocks[2].steps, [800, -800, 0, 0, 93, 0]);
+        assert_eq!(s.blocks[2].line, 8);
+    }
+
+    #[test]
+    fn refuses_bad_programs_with_location() {
+        let e = steps_from_gcode("G1 X10\nG1 X500\n", "a.gcode", StepConfig::default()).expect_err("off bed");
+        assert_eq!(e.to_string(), "a.gcode:2: X: X500 leaves the bed (0..=220 mm); refused");
+        let e = steps_from_gcode("M104 S400\n", "a.gcode", StepConfig::default()).expect_err("hot");
+        assert!(e.to_string().starts_with("a.gcode:1: S: M104 S400 exceeds"), "{e}");
+        let e = steps_from_gcode("M11 F0.8 S0.5\n", "a.gcode", StepConfig::default()).expect_err("ratio");
+        assert!(e.to_string().starts_with("a.gcode:1: M11:"), "{e}");
+        assert!(steps_from_gcode("M11 S0.5\n", "a.gcode", StepConfig::default()).is_err());
+    }
+
+    proptest! {
+        #[test]
+        fn never_panics_and_extrusion_sums(lines in proptest::collection::vec((0.0f64..220.0, 0.0f64..220.0, 0.0f64..5.0, 0.0f64..1.0, 0.0f64..1.0), 1..20)) {
+            let mut text = String::from("M83\n");
+            let mut e_total = 0.0;
+            for (x, y, e, a, b) in &lines {
+                text.push_str(&format!("M11 F{} S{}\nG1 X{x} Y{y} E{e} F1200\n", a, b * (1.0 - a)));
+                e_total += e;
+            }
+            let s = steps_from_gcode(&text, "p.gcode", StepConfig::default()).expect("valid program");
+            let e_steps: i64 = s.blocks.iter().map(|b| b.steps[3] + b.steps[4] + b.steps[5]).sum();
+            // Relative E is accumulated by the machine; its rounded absolute position is exact.
+            prop_assert!((e_steps as f64 - e_total * 93.0).abs() <= 0.5 + 1e-6 * e_total * 93.0);
+        }
+
+        #[test]
+        fn arbitrary_text_never_panics(text in "[GMXYZEFS0-9 .\\-\\n;]{0,120}") {
+            let _ = steps_from_gcode(&text, "p.gcode", StepConfig::default());
+        }
+    }
+}
