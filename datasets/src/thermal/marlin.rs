@@ -36,9 +36,9 @@ impl Default for MarlinOptions {
     }
 }
 
-/// Parse `YYYY-MM-DD HH:MM:SS,mmm` (or `.mmm`) into seconds since an epoch
-/// good for differences (days counted by a civil-calendar formula).
-fn timestamp_s(s: &str) -> Option<f64> {
+/// Parse `YYYY-MM-DD HH:MM:SS,mmm` (or `.mmm`) into (day number, seconds of
+/// the day): kept apart so millisecond differences survive in f64.
+fn timestamp_s(s: &str) -> Option<(i64, f64)> {
     let s = s.trim();
     if s.len() < 19 {
         return None;
@@ -57,11 +57,11 @@ fn timestamp_s(s: &str) -> Option<f64> {
     let doy = (153 * (mo + if mo > 2 { -3 } else { 9 }) + 2) / 5 + da - 1;
     let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
     let days = era * 146_097 + doe;
-    Some(days as f64 * 86_400.0 + h * 3600.0 + mi * 60.0 + sec)
+    Some((days, h * 3600.0 + mi * 60.0 + sec))
 }
 
 /// Split an OctoPrint-style line into (timestamp, direction, payload).
-fn host_frame(line: &str) -> Option<(f64, &str, &str)> {
+fn host_frame(line: &str) -> Option<((i64, f64), &str, &str)> {
     let (stamp, rest) = line.split_once(" - ")?;
     let t = timestamp_s(stamp)?;
     let (dir, payload) = rest.split_once(':')?;
@@ -96,6 +96,7 @@ pub fn parse(text: &str, file: &str, opts: &MarlinOptions) -> Result<RawLog, Dat
     let mut fan = 0.0;
     let mut skipped = 0usize;
     let mut framed: Option<bool> = None;
+    let mut first_day: Option<i64> = None;
     for (idx, raw) in text.lines().enumerate() {
         let row = idx + 1;
         let line = raw.trim();
@@ -103,7 +104,8 @@ pub fn parse(text: &str, file: &str, opts: &MarlinOptions) -> Result<RawLog, Dat
             continue;
         }
         let (time, payload) = match host_frame(line) {
-            Some((t, dir, payload)) => {
+            Some(((day, sod), dir, payload)) => {
+                let t = (day - *first_day.get_or_insert(day)) as f64 * 86_400.0 + sod;
                 if framed == Some(false) {
                     return Err(DatasetError::parse(file, row, "timestamp", "time-stamped line in a bare log"));
                 }
@@ -234,7 +236,9 @@ mod tests {
     fn timestamps_cross_midnight_and_month_ends() {
         let a = timestamp_s("2024-02-29 23:59:59,500").expect("a");
         let b = timestamp_s("2024-03-01 00:00:00,500").expect("b");
-        assert!((b - a - 1.0).abs() < 1e-9);
+        assert!(((b.0 - a.0) as f64 * 86_400.0 + b.1 - a.1 - 1.0).abs() < 1e-9);
+        let c = timestamp_s("2025-01-01 00:00:00.000").expect("c");
+        assert_eq!(c.0 - a.0, 307, "2024-02-29 → 2025-01-01 is 307 days");
     }
 
     proptest! {

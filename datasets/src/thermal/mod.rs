@@ -85,7 +85,7 @@ impl RawLog {
             return Err(DatasetError::parse(&self.file, 0, "time_s", format!("need at least 3 samples, found {n}")));
         }
         let median = self.median_dt_s();
-        let (time, pick): (Vec<f64>, Box<dyn Fn(&[f64], bool) -> Vec<f64>>) = match how.resample_s {
+        let pick: Box<dyn Fn(&[f64], bool) -> Vec<f64>> = match how.resample_s {
             None => {
                 if let Some((k, d)) = self.time_s.windows(2).map(|w| w[1] - w[0]).enumerate().find(|(_, d)| (d - median).abs() > UNIFORM_TOLERANCE * median) {
                     return Err(DatasetError::parse(
@@ -95,7 +95,7 @@ impl RawLog {
                         format!("irregular sampling: interval {d} s differs from the median {median} s by more than 1 %; resample explicitly (e.g. --resample {median})"),
                     ));
                 }
-                (self.time_s.clone(), Box::new(|v: &[f64], _| v.to_vec()))
+                Box::new(|v: &[f64], _| v.to_vec())
             }
             Some(dt) => {
                 if !(dt.is_finite() && dt > 0.0) {
@@ -108,11 +108,10 @@ impl RawLog {
                 }
                 let grid: Vec<f64> = (0..count).map(|i| t0 + i as f64 * dt).collect();
                 let src = self.time_s.clone();
-                let g2 = grid.clone();
-                (grid, Box::new(move |v: &[f64], hold| resample(&src, v, &g2, hold)))
+                Box::new(move |v: &[f64], hold| resample(&src, v, &grid, hold))
             }
         };
-        let dt_s = if how.resample_s.is_some() { how.resample_s.unwrap_or(median) } else { median };
+        let dt_s = how.resample_s.unwrap_or(median);
         let temperature_c = pick(&self.temperature_c, false);
         let ambient_c = match (&self.ambient_c, how.ambient_c) {
             (Some(a), _) => a.iter().sum::<f64>() / a.len().max(1) as f64,
@@ -138,7 +137,6 @@ impl RawLog {
             target_c: self.target_c.as_ref().map(|v| pick(v, true)).unwrap_or_default(),
             ambient_c,
         };
-        let _ = time;
         e.check()?;
         Ok(e)
     }
@@ -200,4 +198,69 @@ mod tests {
         let e = r.to_experiment(&Uniformity { resample_s: None, ambient_c: Some(23.0) }).expect("ok");
         assert_eq!(e.ambient_c, 23.0);
     }
+}
+
+/// Log formats fdmlab reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogFormat {
+    /// Log CSV ([`csv`]).
+    Csv,
+    /// Marlin serial log ([`marlin`]).
+    Marlin,
+    /// Klipper klippy.log ([`klipper`]).
+    Klipper,
+}
+
+impl LogFormat {
+    /// Parse `csv`, `marlin` or `klipper`.
+    pub fn parse(s: &str) -> Result<Self, DatasetError> {
+        match s {
+            "csv" => Ok(LogFormat::Csv),
+            "marlin" => Ok(LogFormat::Marlin),
+            "klipper" => Ok(LogFormat::Klipper),
+            other => Err(DatasetError::Refused(format!("unknown log format `{other}`; expected csv, marlin or klipper"))),
+        }
+    }
+
+    /// Guess from the file name and content: `.csv` → CSV, a `Stats <t>:` line
+    /// → Klipper, otherwise Marlin.
+    pub fn detect(file: &str, text: &str) -> Self {
+        if file.to_ascii_lowercase().ends_with(".csv") {
+            LogFormat::Csv
+        } else if text.lines().any(|l| l.trim_start().starts_with("Stats ") && l.contains(':')) {
+            LogFormat::Klipper
+        } else {
+            LogFormat::Marlin
+        }
+    }
+}
+
+/// Everything needed to read one log.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadOptions {
+    /// Format (`None`: detect).
+    pub format: Option<LogFormat>,
+    /// Marlin options.
+    pub marlin: marlin::MarlinOptions,
+    /// Klipper heater section name.
+    pub klipper_heater: String,
+    /// Sampling and ambient handling.
+    pub uniformity: Uniformity,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions { format: None, marlin: marlin::MarlinOptions::default(), klipper_heater: "extruder".into(), uniformity: Uniformity::default() }
+    }
+}
+
+/// Parse a log of any supported format into a uniformly sampled experiment.
+pub fn read_log(text: &str, file: &str, opts: &ReadOptions) -> Result<(Experiment, Vec<String>), DatasetError> {
+    let raw = match opts.format.unwrap_or_else(|| LogFormat::detect(file, text)) {
+        LogFormat::Csv => csv::parse(text, file)?,
+        LogFormat::Marlin => marlin::parse(text, file, &opts.marlin)?,
+        LogFormat::Klipper => klipper::parse(text, file, &opts.klipper_heater)?,
+    };
+    let e = raw.to_experiment(&opts.uniformity)?;
+    Ok((e, raw.notes))
 }

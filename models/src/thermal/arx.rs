@@ -149,29 +149,81 @@ fn residuals(data: &[Series], p: &Polynomials) -> Vec<Vec<f64>> {
 
 /// ARMAX(n, n, n, nk = 1) by prediction-error minimisation: Hannan–Rissanen
 /// start (a high-order ARX gives the innovations, one regression on their
-/// lags; Hannan & Rissanen 1982), then Levenberg–Marquardt on the one-step
-/// prediction errors `e = (A y − B u)/C` (Ljung 1999, §10.2).
+/// lags; Hannan & Rissanen 1982), then damped Gauss–Newton on the one-step
+/// prediction errors with the gradient `ψ = φ/C(q)` (Ljung 1999, §10.2, eq. 10.55).
 pub fn armax(data: &[Series], n: usize) -> Result<Polynomials, ModelError> {
     let (ys, us) = views(data);
     let m = us.first().map_or(0, |u| u.len());
     let long = (3 * n).max(10);
     let e = residuals(data, &arx(data, long, long)?);
     let theta = regress(data, &ys, &ys, &us, Some(&e), n, n, n)?;
-    let mut start = unpack(&theta, n, n, m, n);
-    if !(Polynomials { a: start.c.clone(), b: vec![], c: vec![] }).is_stable() {
-        start.c = vec![0.0; n];
+    let mut current = unpack(&theta, n, n, m, n);
+    if !c_stable(&current) {
+        current.c = vec![0.0; n];
     }
-    let pack = |p: &Polynomials| -> Vec<f64> { p.a.iter().chain(p.b.iter().flatten()).chain(&p.c).copied().collect() };
-    let unpack_vec = |v: &[f64]| unpack(&DVector::from_column_slice(v), n, n, m, n);
-    // Scale: ‖e‖ of the start, so a blown-up C (unstable 1/C) gives a large
-    // finite residual the optimiser simply rejects.
-    let cap = 1e6 * (1.0 + data.iter().flat_map(|s| s.y.iter()).fold(0.0f64, |a, v| a.max(v.abs())));
-    let residual = |v: &[f64]| -> Vec<f64> {
-        let p = unpack_vec(v);
-        residuals(data, &p).into_iter().flatten().map(|x| if x.is_finite() { x.clamp(-cap, cap) } else { cap }).collect()
-    };
-    let fitted = crate::fit::least_squares(residual, &pack(&start)).map(|f| unpack_vec(&f.params)).unwrap_or(start.clone());
-    Ok(if (Polynomials { a: fitted.c.clone(), b: vec![], c: vec![] }).is_stable() { fitted } else { start })
+    let sse = |p: &Polynomials| residuals(data, p).iter().flatten().map(|x| x * x).sum::<f64>();
+    let mut cost = sse(&current);
+    let p_count = n + n * m + n;
+    let rows: usize = data.iter().map(|s| s.y.len()).sum();
+    for _ in 0..12 {
+        let e = residuals(data, &current);
+        // ψ(k) = φ(k)/C(q), φ = [−y lags, u lags, e lags].
+        let mut psi = DMatrix::zeros(rows, p_count);
+        let mut rhs = DVector::zeros(rows);
+        let mut r0 = 0;
+        for (s, es) in data.iter().zip(&e) {
+            let len = s.y.len();
+            let lagged = |x: &[f64], i: usize, sign: f64| -> Vec<f64> { (0..len).map(|k| if k > i { sign * x[k - 1 - i] } else { 0.0 }).collect() };
+            let mut col = 0;
+            let mut put = |v: Vec<f64>, psi: &mut DMatrix<f64>| {
+                for (k, x) in all_pole(&v, &current.c).into_iter().enumerate() {
+                    psi[(r0 + k, col)] = x;
+                }
+                col += 1;
+            };
+            for i in 0..n {
+                put(lagged(&s.y, i, -1.0), &mut psi);
+            }
+            for uj in &s.u {
+                for i in 0..n {
+                    put(lagged(uj, i, 1.0), &mut psi);
+                }
+            }
+            for i in 0..n {
+                put(lagged(es, i, 1.0), &mut psi);
+            }
+            for (k, x) in es.iter().enumerate() {
+                rhs[r0 + k] = *x;
+            }
+            r0 += len;
+        }
+        let step = linreg::solve(psi, &rhs)?;
+        let base: Vec<f64> = current.a.iter().chain(current.b.iter().flatten()).chain(&current.c).copied().collect();
+        let mut mu = 1.0;
+        let mut improved = false;
+        for _ in 0..10 {
+            let trial = unpack(&DVector::from_iterator(p_count, base.iter().zip(step.iter()).map(|(t, d)| t + mu * d)), n, n, m, n);
+            if c_stable(&trial) {
+                let c = sse(&trial);
+                if c.is_finite() && c < cost {
+                    let gain = (cost - c) / cost.max(f64::MIN_POSITIVE);
+                    current = trial;
+                    cost = c;
+                    improved = gain > 1e-7;
+                    break;
+                }
+            }
+            mu *= 0.5;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok(current)
+}
+
+fn c_stable(p: &Polynomials) -> bool {
+    Polynomials { a: p.c.clone(), b: vec![], c: vec![] }.is_stable()
 }
 
 /// Filter `x` by `1/F(q)`, `F = 1 + f1 q⁻¹ + …`.

@@ -48,6 +48,23 @@ pub struct Drive {
     pub extrude_mm3_s: f64,
 }
 
+/// The affine one-step map of (block, sensor) rises for a held drive.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepMap {
+    bb: f64,
+    b0: f64,
+    ss: f64,
+    sb: f64,
+    s0: f64,
+}
+
+impl StepMap {
+    /// Advance one sample.
+    pub fn apply(&self, block: f64, sensor: f64) -> (f64, f64) {
+        (self.bb * block + self.b0, self.ss * sensor + self.sb * block + self.s0)
+    }
+}
+
 impl Rates {
     /// Total loss rate for a drive, 1/s.
     pub fn loss_rate(&self, d: &Drive) -> f64 {
@@ -60,22 +77,26 @@ impl Rates {
     /// two linear ODEs (the block is a first-order exponential, the sensor a
     /// first-order filter of it), so the step size does not bias the result.
     pub fn step(&self, block: f64, sensor: f64, d: &Drive, dt: f64) -> (f64, f64) {
+        self.coefficients(d, dt).apply(block, sensor)
+    }
+
+    /// The exact one-step map for a held drive (reusable while the drive is unchanged).
+    pub fn coefficients(&self, d: &Drive, dt: f64) -> StepMap {
         let g = self.loss_rate(d);
         let alpha = 1.0 / self.sensor_tau_s;
-        let target = if g > 0.0 { self.heat_k_s * d.heater / g } else { 0.0 };
         let (eg, ea) = ((-g * dt).exp(), (-alpha * dt).exp());
-        let block_next = if g > 0.0 { target + (block - target) * eg } else { block + self.heat_k_s * d.heater * dt };
-        // Sensor: S(dt) = S0·e^{−α dt} + target·(1 − e^{−α dt}) + (B0 − target)·α·(e^{−g dt} − e^{−α dt})/(α − g).
-        let diff = alpha - g;
-        let cross = if diff.abs() > 1e-9 * alpha { alpha * (eg - ea) / diff } else { alpha * dt * ea };
-        let sensor_next = if g > 0.0 {
-            sensor * ea + target * (1.0 - ea) + (block - target) * cross
+        if g > 0.0 {
+            let target = self.heat_k_s * d.heater / g;
+            // Sensor: S(dt) = S0·e^{−α dt} + target·(1 − e^{−α dt}) + (B0 − target)·α·(e^{−g dt} − e^{−α dt})/(α − g).
+            let diff = alpha - g;
+            let cross = if diff.abs() > 1e-9 * alpha { alpha * (eg - ea) / diff } else { alpha * dt * ea };
+            // block' = eg·B + (1 − eg)·target; sensor' = ea·S + cross·B + (1 − ea − cross)·target.
+            StepMap { bb: eg, b0: (1.0 - eg) * target, ss: ea, sb: cross, s0: (1.0 - ea - cross) * target }
         } else {
-            // No loss: block ramps linearly; integrate the filter of a ramp.
+            // No loss: the block ramps linearly; the sensor filters the ramp.
             let ramp = self.heat_k_s * d.heater;
-            sensor * ea + block * (1.0 - ea) + ramp * (dt - (1.0 - ea) / alpha)
-        };
-        (block_next, sensor_next)
+            StepMap { bb: 1.0, b0: ramp * dt, ss: ea, sb: 1.0 - ea, s0: ramp * (dt - (1.0 - ea) / alpha) }
+        }
     }
 
     /// Noise-free sensor response, as rises above ambient, from an initial
@@ -83,9 +104,18 @@ impl Rates {
     pub fn simulate_rise(&self, drives: &[Drive], dt: f64, y0_rise: f64) -> Vec<f64> {
         let (mut block, mut sensor) = (y0_rise, y0_rise);
         let mut out = Vec::with_capacity(drives.len());
+        let mut cached: Option<(Drive, StepMap)> = None;
         for d in drives {
             out.push(sensor);
-            (block, sensor) = self.step(block, sensor, d, dt);
+            let map = match cached {
+                Some((held, map)) if held == *d => map,
+                _ => {
+                    let map = self.coefficients(d, dt);
+                    cached = Some((*d, map));
+                    map
+                }
+            };
+            (block, sensor) = map.apply(block, sensor);
         }
         out
     }
