@@ -152,10 +152,20 @@ fn residuals(data: &[Series], p: &Polynomials) -> Vec<Vec<f64>> {
 /// lags; Hannan & Rissanen 1982), then damped Gauss–Newton on the one-step
 /// prediction errors with the gradient `ψ = φ/C(q)` (Ljung 1999, §10.2, eq. 10.55).
 pub fn armax(data: &[Series], n: usize) -> Result<Polynomials, ModelError> {
+    armax_from(data, n, &innovations(data, (3 * n).max(10))?)
+}
+
+/// Innovations estimate for the Hannan–Rissanen start: residuals of a long
+/// ARX(`lags`, `lags`); compute once and share across orders.
+pub fn innovations(data: &[Series], lags: usize) -> Result<Vec<Vec<f64>>, ModelError> {
+    Ok(residuals(data, &arx(data, lags, lags)?))
+}
+
+/// [`armax`] from precomputed innovations `e` (one vector per experiment).
+pub fn armax_from(data: &[Series], n: usize, e: &[Vec<f64>]) -> Result<Polynomials, ModelError> {
     let (ys, us) = views(data);
     let m = us.first().map_or(0, |u| u.len());
-    let long = (3 * n).max(10);
-    let e = residuals(data, &arx(data, long, long)?);
+    let e = e.to_vec();
     let theta = regress(data, &ys, &ys, &us, Some(&e), n, n, n)?;
     let mut current = unpack(&theta, n, n, m, n);
     if !c_stable(&current) {
@@ -165,7 +175,7 @@ pub fn armax(data: &[Series], n: usize) -> Result<Polynomials, ModelError> {
     let mut cost = sse(&current);
     let p_count = n + n * m + n;
     let rows: usize = data.iter().map(|s| s.y.len()).sum();
-    for _ in 0..12 {
+    for _ in 0..8 {
         let e = residuals(data, &current);
         // ψ(k) = φ(k)/C(q), φ = [−y lags, u lags, e lags].
         let mut psi = DMatrix::zeros(rows, p_count);
@@ -197,7 +207,14 @@ pub fn armax(data: &[Series], n: usize) -> Result<Polynomials, ModelError> {
             }
             r0 += len;
         }
-        let step = linreg::solve(psi, &rhs)?;
+        // Gauss–Newton step from the normal equations (ψᵀψ is p×p, p ≤ 3·order):
+        // far cheaper than a QR of the N×p matrix, and GN is damped anyway.
+        let gram = psi.tr_mul(&psi);
+        let grad = psi.tr_mul(&rhs);
+        let step = match gram.clone().cholesky() {
+            Some(ch) => ch.solve(&grad),
+            None => gram.svd(true, true).solve(&grad, 1e-12).map_err(|e| ModelError::Numerical(e.to_string()))?,
+        };
         let base: Vec<f64> = current.a.iter().chain(current.b.iter().flatten()).chain(&current.c).copied().collect();
         let mut mu = 1.0;
         let mut improved = false;

@@ -171,13 +171,20 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
             let heater: Vec<Series> = data.iter().map(|s| Series { y: s.y.clone(), u: vec![s.u[0].clone()] }).collect();
             vec![fopdt::fit(&heater, dt, opts.max_dead_time_s).and_then(|p| fopdt_model(&p, dt, names)).map_err(|e| fail(family, 1, e))]
         }
-        Family::Arx | Family::Armax | Family::Tf => opts
+        Family::Arx | Family::Armax | Family::Tf => {
+            let max_order = opts.orders.iter().copied().max().unwrap_or(1);
+            // One long-ARX innovations estimate shared by every ARMAX order.
+            let innovations = if family == Family::Armax { arx::innovations(data, (3 * max_order).max(10)).ok() } else { None };
+            opts
             .orders
             .iter()
             .map(|&n| {
                 let poly = match family {
                     Family::Arx => arx::arx(data, n, n),
-                    Family::Armax => arx::armax(data, n),
+                    Family::Armax => match &innovations {
+                        Some(e) => arx::armax_from(data, n, e),
+                        None => arx::armax(data, n),
+                    },
                     _ => arx::output_error(data, n, opts.tf_zeros.unwrap_or(n - 1).min(n - 1)),
                 };
                 let zeros = opts.tf_zeros.unwrap_or(n - 1).min(n - 1);
@@ -196,7 +203,8 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
                     })
                     .map_err(|e| fail(family, n, e))
             })
-            .collect(),
+            .collect()
+        }
         Family::N4sid | Family::Moesp => {
             let method = if family == Family::N4sid { subspace::Method::N4sid } else { subspace::Method::Moesp };
             let prepared = match subspace::prepare(data, opts.horizon) {
