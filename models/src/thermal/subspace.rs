@@ -130,7 +130,16 @@ impl Prepared {
         let gamma = DMatrix::from_fn(i, n, |r, c| u[(r, c)] * sv[c].max(0.0).sqrt());
         let up = gamma.rows(0, i - 1).into_owned();
         let down = gamma.rows(1, i - 1).into_owned();
-        let a = up.pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * down;
+        let mut a = up.pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * down;
+        // Shift invariance can return an unstable A when the extra states are
+        // noise directions; then use the padded estimate A = Γ⁺[Γ_down; 0],
+        // which is guaranteed stable (Chui & Maciejowski 1996, Theorem 1).
+        let unstable = super::ss::eigenvalues(&a).map(|p| p.iter().any(|z| z.norm() >= 1.0)).unwrap_or(true);
+        if unstable {
+            let mut padded = DMatrix::zeros(i, n);
+            padded.rows_mut(0, i - 1).copy_from(&gamma.rows(1, i - 1));
+            a = gamma.clone().pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * padded;
+        }
         let c = gamma.rows(0, 1).into_owned() * self.y_scale;
         Ok((a, c))
     }
