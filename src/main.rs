@@ -40,6 +40,12 @@ enum Command {
     Gc,
     /// Print a stored artifact (by hash or prefix) to stdout.
     Cat(cmd::runs::CatArgs),
+    /// Hotend thermal identification, pole placement, simulation, grids, step-test G-code.
+    #[command(subcommand)]
+    Thermal(cmd::thermal::ThermalCommand),
+    /// Export identified models and controllers to firmware formats.
+    #[command(subcommand)]
+    Export(ExportCommand),
     /// Performance benchmarks (use a release build).
     #[command(subcommand)]
     Bench(cmd::bench::BenchCommand),
@@ -56,6 +62,13 @@ enum Command {
     },
 }
 
+/// `fdmlab export …`
+#[derive(Subcommand)]
+enum ExportCommand {
+    /// Hotend model/controller: marlin-mpc, marlin-pid, klipper-pid, klipper-mpc, reprap, c-header.
+    Thermal(cmd::thermal::ExportArgs),
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let ctx = cmd::Ctx::new(cli.store, cli.json);
@@ -70,6 +83,8 @@ fn main() -> ExitCode {
         Command::Bench(c) => cmd::bench::bench(c, &ctx),
         Command::Hbot(c) => cmd::hbot::hbot(c, &ctx),
         Command::Taguchi(c) => cmd::hbot::taguchi(c, &ctx),
+        Command::Thermal(c) => cmd::thermal::run(c, &ctx),
+        Command::Export(ExportCommand::Thermal(a)) => cmd::thermal::export(a, &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

@@ -6,6 +6,7 @@ pub mod csv;
 pub mod error;
 pub mod gcode;
 pub mod hbot;
+pub mod thermal;
 pub mod thermal_log;
 
 pub use error::DatasetError;

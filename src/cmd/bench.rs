@@ -20,6 +20,8 @@ pub enum BenchCommand {
     },
     /// H-Bot twin: a 1 s move, and screening + L27 + confirmation.
     Hbot(super::hbot::BenchArgs),
+    /// Thermal identification (all families, orders 1..8) vs SIPPY's N4SID.
+    Thermal(super::thermal::BenchArgs),
 }
 
 /// Dispatch a bench.
@@ -27,6 +29,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
         BenchCommand::Hbot(a) => super::hbot::bench(a, ctx),
+        BenchCommand::Thermal(a) => super::thermal::bench(a, ctx),
     }
 }
 

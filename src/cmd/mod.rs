@@ -4,6 +4,7 @@ pub mod bench;
 pub mod hbot;
 pub mod run;
 pub mod runs;
+pub mod thermal;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

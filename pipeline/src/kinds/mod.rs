@@ -6,15 +6,17 @@ use crate::stage::Stage;
 
 pub mod hbot;
 pub mod thermal;
+pub mod thermal_grid;
 
 /// Every kind this build knows.
-pub const KINDS: &[&str] = &["thermal-ident", "hbot-taguchi"];
+pub const KINDS: &["thermal-ident", "hbot-taguchi", "thermal-grid"];
 
 /// The stages of `spec`, after validating its kind-specific sections.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     match spec.header.kind.as_str() {
         "thermal-ident" => thermal::plan(spec),
         "hbot-taguchi" => hbot::plan(spec),
+        "thermal-grid" => thermal_grid::plan(spec),
         other => Err(spec.bad_value("experiment.kind", format!("unknown kind `{other}` (known: {})", KINDS.join(", ")))),
     }
 }

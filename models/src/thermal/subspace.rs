@@ -1,0 +1,240 @@
+//! Subspace identification (N4SID and PO-MOESP) from one LQ factorisation
+//! shared by every order.
+//!
+//! Block Hankel matrices of `i` block rows are stacked `[U_f; U_p; Y_p; Y_f]`
+//! and factored `H = L Q` through the Cholesky factor of `H Hᵀ` (the data
+//! enter only through a small Gram matrix, so cost is linear in the samples).
+//! The extended observability matrix comes from the SVD of
+//! - MOESP: `L32` (Verhaegen 1994, PO-MOESP, eq. 25);
+//! - N4SID: the oblique projection `L32 L22⁺ [L21 L22]` with unit weights
+//!   (Van Overschee & De Moor 1994, Theorem 2).
+//!
+//! `A`, `C` follow from shift invariance; `B` and the initial states then
+//! solve a linear least-squares output-error problem, with `D = 0` (a heater
+//! cannot move the thermistor within the same sample).
+
+use super::arx::Series;
+use super::linreg;
+use super::ss::StateSpace;
+use crate::ModelError;
+use nalgebra::{DMatrix, DVector};
+
+/// Which subspace weighting to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Oblique projection (Van Overschee & De Moor).
+    N4sid,
+    /// Past-output MOESP (Verhaegen).
+    Moesp,
+}
+
+/// The LQ factor of the data Hankel matrix, reused for every order.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    l: DMatrix<f64>,
+    horizon: usize,
+    inputs: usize,
+    y_scale: f64,
+}
+
+/// Build the LQ factor with `horizon` block rows (past and future).
+pub fn prepare(data: &[Series], horizon: usize) -> Result<Prepared, ModelError> {
+    let m = data.first().map_or(0, |s| s.u.len());
+    let i = horizon;
+    if i < 2 || m == 0 {
+        return Err(ModelError::invalid("horizon", i, "need ≥ 2 block rows and ≥ 1 input"));
+    }
+    // Scale to unit RMS so the Gram matrix is balanced.
+    let rms = |v: &mut dyn Iterator<Item = f64>| {
+        let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+        if n > 0 && s > 0.0 { (s / n as f64).sqrt() } else { 1.0 }
+    };
+    let y_scale = rms(&mut data.iter().flat_map(|s| s.y.iter().copied()));
+    let u_scale: Vec<f64> = (0..m).map(|j| rms(&mut data.iter().flat_map(|s| s.u[j].iter().copied()))).collect();
+    let rows = 2 * i * (m + 1);
+    let mut gram = DMatrix::<f64>::zeros(rows, rows);
+    let mut columns = 0;
+    for s in data {
+        let n = s.y.len();
+        if n < 2 * i + 1 {
+            continue;
+        }
+        let j = n - 2 * i + 1;
+        let mut h = DMatrix::<f64>::zeros(rows, j);
+        for c in 0..j {
+            // U_f, then U_p, then Y_p, then Y_f.
+            for b in 0..i {
+                for q in 0..m {
+                    h[(b * m + q, c)] = s.u[q][c + i + b] / u_scale[q];
+                    h[(i * m + b * m + q, c)] = s.u[q][c + b] / u_scale[q];
+                }
+                h[(2 * i * m + b, c)] = s.y[c + b] / y_scale;
+                h[(2 * i * m + i + b, c)] = s.y[c + i + b] / y_scale;
+            }
+        }
+        gram.gemm(1.0, &h, &h.transpose(), 1.0);
+        columns += j;
+    }
+    if columns < rows {
+        return Err(ModelError::Shape(format!("subspace identification with horizon {i} needs more than {} samples", 2 * i + rows)));
+    }
+    gram /= columns as f64;
+    // A tiny ridge keeps Cholesky defined when inputs are not persistently exciting.
+    let ridge = 1e-10 * gram.trace() / rows as f64;
+    for d in 0..rows {
+        gram[(d, d)] += ridge;
+    }
+    let l = gram.cholesky().ok_or_else(|| ModelError::Numerical("data Gram matrix is not positive definite".into()))?.unpack();
+    Ok(Prepared { l, horizon: i, inputs: m, y_scale })
+}
+
+impl Prepared {
+    /// Singular values that decide the order (descending).
+    pub fn singular_values(&self, method: Method) -> Result<Vec<f64>, ModelError> {
+        Ok(self.projection_svd(method)?.1)
+    }
+
+    fn projection_svd(&self, method: Method) -> Result<(DMatrix<f64>, Vec<f64>), ModelError> {
+        let (i, m) = (self.horizon, self.inputs);
+        let (f, p) = (i * m, i * (m + 1));
+        let l21 = self.l.view((f, 0), (p, f));
+        let l22 = self.l.view((f, f), (p, p));
+        let l32 = self.l.view((f + p, f), (i, p));
+        let target = match method {
+            Method::Moesp => l32.into_owned(),
+            Method::N4sid => {
+                let pinv = l22.into_owned().pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))?;
+                let mut wp = DMatrix::zeros(p, f + p);
+                wp.view_mut((0, 0), (p, f)).copy_from(&l21);
+                wp.view_mut((0, f), (p, p)).copy_from(&l22);
+                l32 * pinv * wp
+            }
+        };
+        let svd = target.svd(true, false);
+        let u = svd.u.ok_or_else(|| ModelError::Numerical("SVD failed".into()))?;
+        // nalgebra does not promise sorted singular values: sort them.
+        let mut idx: Vec<usize> = (0..svd.singular_values.len()).collect();
+        idx.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+        let sv: Vec<f64> = idx.iter().map(|&k| svd.singular_values[k]).collect();
+        let u_sorted = DMatrix::from_fn(u.nrows(), idx.len(), |r, c| u[(r, idx[c])]);
+        Ok((u_sorted, sv))
+    }
+
+    /// `A` and `C` of order `n` from shift invariance of the observability matrix.
+    pub fn a_c(&self, n: usize, method: Method) -> Result<(DMatrix<f64>, DMatrix<f64>), ModelError> {
+        let i = self.horizon;
+        if n == 0 || n >= i {
+            return Err(ModelError::invalid("order", n, &format!("must be within 1..{} for horizon {i}", i - 1)));
+        }
+        let (u, sv) = self.projection_svd(method)?;
+        let gamma = DMatrix::from_fn(i, n, |r, c| u[(r, c)] * sv[c].max(0.0).sqrt());
+        let up = gamma.rows(0, i - 1).into_owned();
+        let down = gamma.rows(1, i - 1).into_owned();
+        let mut a = up.pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * down;
+        // Shift invariance can return an unstable A when the extra states are
+        // noise directions; then use the padded estimate A = Γ⁺[Γ_down; 0],
+        // which is guaranteed stable (Chui & Maciejowski 1996, Theorem 1).
+        let unstable = super::ss::eigenvalues(&a).map(|p| p.iter().any(|z| z.norm() >= 1.0)).unwrap_or(true);
+        if unstable {
+            let mut padded = DMatrix::zeros(i, n);
+            padded.rows_mut(0, i - 1).copy_from(&gamma.rows(1, i - 1));
+            a = gamma.clone().pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * padded;
+        }
+        let c = gamma.rows(0, 1).into_owned() * self.y_scale;
+        Ok((a, c))
+    }
+}
+
+/// Estimate `B` (and one initial state per experiment) by least squares on
+/// the simulation error, given `A` and `C`; `D = 0`.
+pub fn fit_b(data: &[Series], a: &DMatrix<f64>, c: &DMatrix<f64>, dt_s: f64) -> Result<StateSpace, ModelError> {
+    let n = a.nrows();
+    let m = data.first().map_or(0, |s| s.u.len());
+    let e_count = data.len();
+    let rows: usize = data.iter().map(|s| s.y.len()).sum();
+    let cols = n * m + n * e_count;
+    let mut phi = DMatrix::zeros(rows, cols);
+    let mut rhs = DVector::zeros(rows);
+    let a_flat: Vec<f64> = a.transpose().iter().copied().collect();
+    let cv: Vec<f64> = c.iter().copied().collect();
+    let mut r0 = 0;
+    for (e, s) in data.iter().enumerate() {
+        // Regressor of B[:, j]: the output of x(k+1) = A x(k) + I·u_j(k), y = C x,
+        // i.e. row vector z_j(k) = C·X_j(k) with X_j(k+1) = A X_j(k) + I u_j(k).
+        for (j, uj) in s.u.iter().enumerate() {
+            let mut x = vec![0.0; n * n]; // column-major n×n: X[:, col]
+            let mut next = vec![0.0; n * n];
+            for k in 0..s.y.len() {
+                for col in 0..n {
+                    let mut out = 0.0;
+                    for row in 0..n {
+                        out += cv[row] * x[col * n + row];
+                    }
+                    phi[(r0 + k, j * n + col)] = out;
+                }
+                for col in 0..n {
+                    for row in 0..n {
+                        let mut v = 0.0;
+                        for l in 0..n {
+                            v += a_flat[row * n + l] * x[col * n + l];
+                        }
+                        next[col * n + row] = v + if row == col { uj[k] } else { 0.0 };
+                    }
+                }
+                std::mem::swap(&mut x, &mut next);
+            }
+        }
+        // Initial-state regressor: C·A^k.
+        let mut ca = c.clone();
+        for k in 0..s.y.len() {
+            for col in 0..n {
+                phi[(r0 + k, n * m + e * n + col)] = ca[(0, col)];
+            }
+            ca = &ca * a;
+            rhs[r0 + k] = s.y[k];
+        }
+        r0 += s.y.len();
+    }
+    let theta = linreg::solve(phi, &rhs)?;
+    let b = DMatrix::from_fn(n, m, |row, j| theta[j * n + row]);
+    StateSpace::new(a.clone(), b, c.clone(), DMatrix::zeros(1, m), Some(dt_s))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recovers_a_second_order_system_poles() {
+        // Discrete poles 0.9 and 0.6, random binary input, small output noise.
+        let n = 4000;
+        let mut state = 99u64;
+        let mut rnd = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let u: Vec<f64> = (0..n).map(|k| if (k * 7919 / 13) % 3 == 0 { 1.0 } else { 0.0 }).collect();
+        let mut y = vec![0.0; n];
+        let (mut x1, mut x2) = (0.0, 0.0);
+        for k in 0..n {
+            y[k] = x1 + x2 + 0.01 * rnd();
+            let (n1, n2) = (0.9 * x1 + 0.5 * u[k], 0.6 * x2 + 1.0 * u[k]);
+            x1 = n1;
+            x2 = n2;
+        }
+        let data = vec![Series { y, u: vec![u] }];
+        let prep = prepare(&data, 8).expect("prep");
+        for method in [Method::N4sid, Method::Moesp] {
+            let sv = prep.singular_values(method).expect("sv");
+            // Two states: the third singular value is noise-level.
+            assert!(sv[2] < 0.05 * sv[1], "{sv:?}");
+            let (a, c) = prep.a_c(2, method).expect("ac");
+            let ss = fit_b(&data, &a, &c, 1.0).expect("b");
+            let mut poles: Vec<f64> = ss.poles().expect("poles").iter().map(|p| p.re).collect();
+            poles.sort_by(f64::total_cmp);
+            // σ = 0.003 noise on 4000 samples: pole errors ≈ 1e-3.
+            assert!((poles[0] - 0.6).abs() < 0.01 && (poles[1] - 0.9).abs() < 0.01, "{method:?} {poles:?}");
+            assert!((ss.dc_gain().expect("gain")[0] - 7.5).abs() < 0.05);
+        }
+    }
+}

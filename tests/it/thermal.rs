@@ -1,0 +1,112 @@
+//! End-to-end: thermal grids, identification, placement, exports, bad input.
+
+use crate::common::Sandbox;
+
+const SOURCE_4_STATE: &str = r#"{"A":[[0.0008825,-0.002625,0.001638,-0.004195],[0.006013,0.01268,0.2325,-0.4324],[0.001642,-0.1009,-0.07618,1.912],[0.001088,0.01527,-1.538,-0.07442]],
+"B":[-2.87e-7,-5.262e-6,5.458e-5,-9.529e-5],"C":[1107,-0.4442,-0.3671,-0.5748],"D":0}"#;
+
+#[test]
+fn grid_identify_json_shape_and_cross_validation() {
+    let sb = Sandbox::new();
+    sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "3"]);
+    let v = sb.json(&["thermal", "identify", "grid/ident-1.csv", "--orders", "1..3", "--families", "arx,n4sid,tf,greybox", "--horizon", "10", "--verify", "grid/verif-2.csv"]);
+    // 1 log of the twin's step test: heat to 150 °C then 300 s off.
+    let rows = v["rows"].as_u64().expect("rows");
+    assert!(rows > 600, "{rows}");
+    let models = v["models"].as_array().expect("models");
+    assert_eq!(models.len(), 3 * 3 + 1);
+    for m in models {
+        let keys: Vec<&str> = m.as_object().expect("object").keys().map(String::as_str).collect();
+        assert_eq!(keys, ["aic", "family", "fit_percent", "model", "order", "rms"]);
+        assert_eq!(m["model"].as_str().expect("hash").len(), 64);
+    }
+    // Output-error TF of order 2 matches the second-order twin to noise level (see models' ident test).
+    let tf2 = models.iter().find(|m| m["family"] == "tf" && m["order"] == 2).expect("tf-2");
+    assert!(tf2["fit_percent"].as_f64().expect("fit") > 98.3, "{tf2}");
+    assert_eq!(v["cross_validation"]["experiments"].as_array().expect("cols").len(), 1);
+    // The stored model artifact is readable and placeable (order 2: Ackermann).
+    let hash = tf2["model"].as_str().expect("hash");
+    let p = sb.json(&["thermal", "place", "--model", hash, "--poles", "-0.05", "-0.06"]);
+    assert_eq!(p["L"].as_array().expect("L").len(), 2);
+    assert_eq!(p["method"], "ackermann");
+}
+
+#[test]
+fn place_reproduces_the_source_four_state_design() {
+    let sb = Sandbox::new();
+    sb.write("ss4.json", SOURCE_4_STATE);
+    let v = sb.json(&["thermal", "place", "--model", "ss4.json", "--poles", "-0.015", "-0.015", "-0.015", "-0.015"]);
+    let m = v["M"].as_f64().expect("M");
+    // Source: M ≈ 0.0011; exact value 0.0010607 (python-control acker agrees).
+    assert!((m - 0.00106).abs() < 0.00002, "{m}");
+    assert_eq!(v["method"], "hessenberg");
+    assert_eq!(v["closed_loop_poles"].as_array().expect("poles").len(), 4);
+    // Discrete design at 1 s: z-poles e^{-0.015}.
+    let d = sb.json(&["thermal", "place", "--model", "ss4.json", "--poles", "-0.015", "-0.015", "-0.015", "-0.015", "--discrete", "1"]);
+    assert!(d["M"].as_f64().expect("M").is_finite());
+    assert_eq!(d["dt_s"], 1.0);
+    let out = sb.run(&["thermal", "place", "--model", "ss4.json", "--poles", "-0.1", "-0.2"]);
+    assert_eq!(out.status.code(), Some(2), "wrong pole count is bad input");
+}
+
+#[test]
+fn bad_log_fails_with_file_row_and_column() {
+    let sb = Sandbox::new();
+    sb.write("bad.csv", "time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,21\n1,1.2,0,22\n");
+    let out = sb.run(&["thermal", "identify", "bad.csv"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.csv:3: heater_duty: duty 1.2 outside 0..1"), "{err}");
+    sb.write("irregular.csv", "time_s,heater_duty,fan_duty,temperature_c\n0,1,0,21\n1,1,0,22\n2.5,1,0,23\n3,1,0,24\n");
+    let out = sb.run(&["thermal", "identify", "irregular.csv"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("irregular sampling"));
+}
+
+#[test]
+fn marlin_and_klipper_logs_are_read() {
+    let sb = Sandbox::new();
+    // A first-order response sampled at 1 Hz: 22 °C + 230·(1 − e^{−t/95}) at full duty.
+    let mut marlin = String::new();
+    let mut klipper = String::new();
+    for k in 0..400 {
+        let t = 22.0 + 230.0 * (1.0 - (-(k as f64) / 95.0).exp());
+        marlin.push_str(&format!("2024-03-01 12:{:02}:{:02},000 - Recv:  T:{t:.2} /250.00 B:22.00 /0.00 @:127 B@:0\n", k / 60, k % 60));
+        klipper.push_str(&format!("Stats {:.1}: gcodein=0 extruder: target=250 temp={t:.1} pwm=1.000 sysload=0.1\n", 100.0 + k as f64));
+    }
+    sb.write("serial.log", &marlin);
+    sb.write("klippy.log", &klipper);
+    for (file, extra) in [("serial.log", vec![]), ("klippy.log", vec!["--resample", "1"])] {
+        let mut args = vec!["thermal", "identify", file, "--families", "fopdt", "--orders", "1"];
+        args.extend(extra);
+        let v = sb.json(&args);
+        assert_eq!(v["rows"], 400);
+        // Noise-free apart from 0.01/0.1 °C rounding: FOPDT fits > 99.9 %.
+        assert!(v["models"][0]["fit_percent"].as_f64().expect("fit") > 99.9, "{file}: {v}");
+    }
+}
+
+#[test]
+fn exports_and_gcode() {
+    let sb = Sandbox::new();
+    sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "4"]);
+    let v = sb.json(&["thermal", "identify", "grid/ident-1.csv", "grid/ident-2.csv", "grid/ident-3.csv", "grid/ident-4.csv", "--families", "greybox"]);
+    let hash = v["models"][0]["model"].as_str().expect("hash").to_string();
+    let m306 = sb.ok(&["export", "thermal", "--model", &hash, "--format", "marlin-mpc", "--heater-power-w", "20"]);
+    // The twin: C = 40 J/K, A = 0.08 W/K, F = 0.13 W/K, R = 1/8 s⁻¹; the grey box
+    // recovers them within a few % (models' grey-box test), so check the leading digits.
+    let line = m306.lines().find(|l| l.starts_with("M306")).expect("M306 line");
+    let field = |c: char| -> f64 { line.split_whitespace().find(|w| w.starts_with(c)).and_then(|w| w[1..].parse().ok()).expect("field") };
+    assert!((field('C') / 40.0 - 1.0).abs() < 0.02, "{line}");
+    assert!((field('A') / 0.08 - 1.0).abs() < 0.03, "{line}");
+    assert!((field('F') / 0.13 - 1.0).abs() < 0.05, "{line}");
+    assert!(sb.ok(&["export", "thermal", "--model", &hash, "--format", "klipper-pid"]).contains("pid_Kp:"));
+    assert!(sb.ok(&["export", "thermal", "--model", &hash, "--format", "reprap"]).contains("M307 H1 R"));
+    assert!(sb.ok(&["export", "thermal", "--model", &hash, "--format", "c-header", "--poles", "-0.02", "-0.03"]).contains("fdmlab_thermal_M"));
+    let out = sb.run(&["export", "thermal", "--model", &hash, "--format", "marlin-mpc"]);
+    assert_eq!(out.status.code(), Some(2), "heater power is required");
+    let g = sb.ok(&["thermal", "gcode", "--max-z", "100"]);
+    assert!(g.contains("M155 S1") && g.matches("M109 S150").count() == 4);
+    let out = sb.run(&["thermal", "gcode", "--max-z", "50"]);
+    assert_eq!(out.status.code(), Some(2), "head height MAX = 70 mm exceeds Z 50: refused");
+}
