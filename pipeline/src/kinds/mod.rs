@@ -9,7 +9,7 @@ pub mod thermal;
 pub mod thermal_grid;
 
 /// Every kind this build knows.
-pub const KINDS: &["thermal-ident", "hbot-taguchi", "thermal-grid"];
+pub const KINDS: &[&str] = &["thermal-ident", "thermal-grid", "hbot-taguchi"];
 
 /// The stages of `spec`, after validating its kind-specific sections.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
