@@ -4,5 +4,6 @@
 
 pub mod error;
 pub mod gcode;
+pub mod pa;
 
 pub use error::DatasetError;
