@@ -1,1 +1,77 @@
-fn main() {}
+//! `fdmlab`: the command-line shell over the fdmlab crates. Parses arguments,
+//! dispatches to `cmd::*`, and maps errors to exit codes: 0 ok, 1 failure,
+//! 2 bad input.
+
+mod cmd;
+
+use clap::{CommandFactory, Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// fdmlab: reproducible FDM printer experiments — declarative specs in,
+/// versioned artifacts and reports out.
+#[derive(Parser)]
+#[command(name = "fdmlab", version, about, long_about = None)]
+struct Cli {
+    /// Store folder (default: $FDMLAB_STORE, else ./.fdmlab).
+    #[arg(long, global = true, value_name = "DIR")]
+    store: Option<PathBuf>,
+    /// Machine-readable JSON on stdout (logs stay on stderr).
+    #[arg(long, global = true)]
+    json: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a spec (or every *.toml in a folder); cached stages are reused.
+    Run(cmd::run::RunArgs),
+    /// Check a spec (or folder) without running it.
+    Validate(cmd::run::ValidateArgs),
+    /// List or show run records.
+    #[command(subcommand)]
+    Runs(cmd::runs::RunsCommand),
+    /// Parameters, metrics and artifact hashes of two runs side by side.
+    Diff(cmd::runs::DiffArgs),
+    /// Re-hash every blob; list corrupt or missing ones (exit 1 if any).
+    Verify,
+    /// Remove blobs and stage records that no run references.
+    Gc,
+    /// Print a stored artifact (by hash or prefix) to stdout.
+    Cat(cmd::runs::CatArgs),
+    /// Performance benchmarks (use a release build).
+    #[command(subcommand)]
+    Bench(cmd::bench::BenchCommand),
+    /// Print shell completions.
+    Completions {
+        /// Shell to generate for.
+        shell: clap_complete::Shell,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let ctx = cmd::Ctx::new(cli.store, cli.json);
+    let result = match cli.command {
+        Command::Run(a) => cmd::run::run(a, &ctx),
+        Command::Validate(a) => cmd::run::validate(a, &ctx),
+        Command::Runs(c) => cmd::runs::runs(c, &ctx),
+        Command::Diff(a) => cmd::runs::diff(a, &ctx),
+        Command::Verify => cmd::runs::verify(&ctx),
+        Command::Gc => cmd::runs::gc(&ctx),
+        Command::Cat(a) => cmd::runs::cat(a, &ctx),
+        Command::Bench(c) => cmd::bench::bench(c, &ctx),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(cmd::exit_code(&e))
+        }
+    }
+}

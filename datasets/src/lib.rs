@@ -2,8 +2,10 @@
 //! readers, log and CSV parsers, score ingest, firmware/daemon export text.
 //! Parsers report the file, line/row and field of bad input.
 
+pub mod csv;
 pub mod error;
 pub mod gcode;
 pub mod pa;
+pub mod thermal_log;
 
 pub use error::DatasetError;

@@ -1,1 +1,4 @@
+//! The one integration-test binary: drives the `fdmlab` binary end to end.
 
+mod common;
+mod foundation;

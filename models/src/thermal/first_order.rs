@@ -21,6 +21,7 @@ pub struct FirstOrderPlant {
 
 /// A heat-then-cool step test.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StepProtocol {
     /// Heater duty during the heating phase (0..1).
     pub duty: f64,
@@ -34,6 +35,7 @@ pub struct StepProtocol {
 
 /// Sensor model: additive Gaussian noise and ADC quantisation.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SensorNoise {
     /// Standard deviation of the noise, °C.
     pub sigma_c: f64,

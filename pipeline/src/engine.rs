@@ -1,0 +1,232 @@
+//! Runs a spec: plan its stages, key each one, reuse stored results, run the
+//! rest, then write the run record, the lock file and the materialised report.
+
+use crate::error::{Error, Result};
+use crate::kinds;
+use crate::runs::{self, LockFile, RunRecord, StageRun};
+use crate::spec::SpecFile;
+use crate::stage::{stage_key, InputRef, OutputRef, Stage, StageInput, StageRecord};
+use crate::store::{Hash, Store};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// How to run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Rerun every stage even when its key is stored.
+    pub force: bool,
+    /// Show a progress bar (stderr) — set when stdout is a terminal.
+    pub progress: bool,
+}
+
+/// Parse and validate a spec and plan its stages without running anything.
+pub fn validate(path: &Path) -> Result<(SpecFile, Vec<Stage>)> {
+    let spec = SpecFile::load(path)?;
+    let stages = kinds::plan(&spec)?;
+    check_graph(&spec, &stages)?;
+    Ok((spec, stages))
+}
+
+fn check_graph(spec: &SpecFile, stages: &[Stage]) -> Result<()> {
+    let mut seen = BTreeSet::new();
+    for s in stages {
+        let bad = |m: String| Error::Stage { stage: s.name.clone(), message: m };
+        if !crate::names::is_safe_name(&s.name) {
+            return Err(bad("stage name is not a safe file name".into()));
+        }
+        for d in &s.deps {
+            if !seen.contains(d.as_str()) {
+                return Err(bad(format!("depends on `{d}`, which is not an earlier stage of kind `{}`", spec.header.kind)));
+            }
+        }
+        if !seen.insert(s.name.as_str()) {
+            return Err(bad("stage name used twice".into()));
+        }
+        for f in &s.files {
+            if !f.is_file() {
+                return Err(Error::Input { file: spec.path.display().to_string(), line: 0, column: 0, key: String::new(), message: format!("input file `{}` does not exist", f.display()) });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Run the spec at `path` on `store`.
+pub fn run(store: &Store, path: &Path, opts: &RunOptions) -> Result<RunRecord> {
+    let started = Instant::now();
+    let started_at = runs::iso_utc_now();
+    let (spec, stages) = validate(path)?;
+    let kind = spec.header.kind.clone();
+    let bar = progress_bar(opts.progress, stages.len(), &spec.header.name);
+    let mut upstream: BTreeMap<String, Vec<OutputRef>> = BTreeMap::new();
+    let mut done = Vec::new();
+    for stage in &stages {
+        if let Some(b) = &bar {
+            b.set_message(stage.name.clone());
+        }
+        let t0 = Instant::now();
+        let mut files = BTreeMap::new();
+        let mut inputs = Vec::new();
+        for d in &stage.deps {
+            for o in upstream.get(d).into_iter().flatten() {
+                inputs.push(InputRef { name: format!("{d}/{}", o.name), hash: o.hash.clone() });
+            }
+        }
+        for f in &stage.files {
+            let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
+            let hash = store.put(&bytes)?;
+            inputs.push(InputRef { name: format!("file:{}", file_label(&spec, f)), hash: hash.clone() });
+            files.insert(f.clone(), hash);
+        }
+        let key = stage_key(&kind, stage, &inputs);
+        let cached = if opts.force { None } else { load_stage(store, &key) };
+        let (record, was_cached) = match cached {
+            Some(r) => (r, true),
+            None => {
+                let input = StageInput { seed: spec.header.seed, params: &stage.params, store, upstream: &upstream, files: &files, stage: &stage.name };
+                let out = (stage.run)(&input).map_err(|e| match e {
+                    Error::Io { .. } | Error::Store(_) | Error::Stage { .. } => e,
+                    other if other.is_bad_input() => other,
+                    other => Error::Stage { stage: stage.name.clone(), message: other.to_string() },
+                })?;
+                let mut outputs = Vec::new();
+                let mut names = BTreeSet::new();
+                for a in out.artifacts {
+                    if !crate::names::is_safe_name(&a.name) || !names.insert(a.name.clone()) {
+                        return Err(Error::Stage { stage: stage.name.clone(), message: format!("output name `{}` is unsafe or repeated", a.name) });
+                    }
+                    let hash = store.put(&a.bytes)?;
+                    outputs.push(OutputRef { name: a.name, hash, media_type: a.media_type, bytes: a.bytes.len() as u64 });
+                }
+                let record = StageRecord {
+                    key: key.clone(),
+                    kind: kind.clone(),
+                    stage: stage.name.clone(),
+                    version: stage.version,
+                    params: stage.params.clone(),
+                    inputs: inputs.clone(),
+                    outputs,
+                    metrics: out.metrics,
+                    wall_s: t0.elapsed().as_secs_f64(),
+                };
+                save_stage(store, &record)?;
+                (record, false)
+            }
+        };
+        upstream.insert(stage.name.clone(), record.outputs.clone());
+        done.push(StageRun {
+            name: stage.name.clone(),
+            key,
+            version: stage.version,
+            cached: was_cached,
+            params: stage.params.clone(),
+            inputs,
+            outputs: record.outputs,
+            metrics: record.metrics,
+            wall_s: t0.elapsed().as_secs_f64(),
+        });
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let reports_dir = materialise_reports(store, &spec.header.name, &done)?;
+    let record = RunRecord {
+        id: runs::new_run_id(store)?,
+        experiment: spec.header.name.clone(),
+        kind,
+        spec_path: spec.path.display().to_string(),
+        spec_hash: Hash::of(spec.text.as_bytes()).0,
+        seed: spec.header.seed,
+        fdmlab_version: env!("CARGO_PKG_VERSION").into(),
+        git_rev: git_rev(&spec.dir()),
+        started_at,
+        wall_s: started.elapsed().as_secs_f64(),
+        stages: done,
+        reports_dir: reports_dir.map(|p| p.display().to_string()),
+    };
+    runs::write_record(store, &record)?;
+    write_lock(store, &spec, &record)?;
+    Ok(record)
+}
+
+/// The name a file input is recorded under: relative to the spec when possible.
+fn file_label(spec: &SpecFile, f: &Path) -> String {
+    f.strip_prefix(spec.dir()).unwrap_or(f).display().to_string()
+}
+
+fn stage_path(store: &Store, key: &str) -> PathBuf {
+    store.root().join("stages").join(format!("{key}.json"))
+}
+
+/// A stored stage result, if its record is readable and every blob is present.
+fn load_stage(store: &Store, key: &str) -> Option<StageRecord> {
+    let bytes = std::fs::read(stage_path(store, key)).ok()?;
+    let rec: StageRecord = serde_json::from_slice(&bytes).ok()?;
+    rec.outputs.iter().all(|o| store.has(&o.hash)).then_some(rec)
+}
+
+fn save_stage(store: &Store, rec: &StageRecord) -> Result<()> {
+    let bytes = serde_json::to_vec_pretty(rec).map_err(|e| Error::Store(e.to_string()))?;
+    store.write_atomic(&stage_path(store, &rec.key), &bytes)
+}
+
+fn write_lock(store: &Store, spec: &SpecFile, record: &RunRecord) -> Result<()> {
+    let mut path = spec.path.clone().into_os_string();
+    path.push(".lock");
+    let path = PathBuf::from(path);
+    let mut bytes = serde_json::to_vec_pretty(&LockFile::of(record)).map_err(|e| Error::Store(e.to_string()))?;
+    bytes.push(b'\n');
+    if std::fs::read(&path).ok().as_deref() == Some(&bytes[..]) {
+        return Ok(());
+    }
+    let tmp = store.root().join("tmp");
+    crate::store::write_atomic_via(&tmp, &path, &bytes)
+}
+
+/// Copy the outputs of the `report` stage to `reports/<experiment>/`, swapping
+/// the whole folder in by rename so readers never see a half-written report.
+fn materialise_reports(store: &Store, experiment: &str, stages: &[StageRun]) -> Result<Option<PathBuf>> {
+    let Some(report) = stages.iter().find(|s| s.name == "report") else {
+        return Ok(None);
+    };
+    let final_dir = store.root().join("reports").join(experiment);
+    let staging = store.root().join("tmp").join(crate::store::unique_name("report"));
+    std::fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+    for o in &report.outputs {
+        let bytes = store.get(&o.hash)?;
+        let p = staging.join(&o.name);
+        std::fs::write(&p, bytes).map_err(|e| Error::io(&p, e))?;
+    }
+    for _ in 0..10 {
+        if final_dir.exists() {
+            let old = store.root().join("tmp").join(crate::store::unique_name("old-report"));
+            let _ = std::fs::rename(&final_dir, &old);
+            let _ = std::fs::remove_dir_all(&old);
+        }
+        if std::fs::rename(&staging, &final_dir).is_ok() {
+            return Ok(Some(final_dir));
+        }
+    }
+    let _ = std::fs::remove_dir_all(&staging);
+    Err(Error::Store(format!("could not replace {}", final_dir.display())))
+}
+
+fn git_rev(dir: &Path) -> Option<String> {
+    let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+    let out = std::process::Command::new("git").arg("-C").arg(dir).args(["rev-parse", "HEAD"]).stderr(std::process::Stdio::null()).output().ok()?;
+    out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+}
+
+fn progress_bar(show: bool, len: usize, name: &str) -> Option<indicatif::ProgressBar> {
+    show.then(|| {
+        let bar = indicatif::ProgressBar::new(len as u64);
+        let style = indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        bar.set_style(style);
+        bar.set_prefix(name.to_string());
+        bar
+    })
+}

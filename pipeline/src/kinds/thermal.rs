@@ -1,0 +1,178 @@
+//! Kind `thermal-ident`: a seeded synthetic hotend step test (the physical
+//! twin) is identified and reported. Stages: `simulate` → `identify` → `report`.
+
+use crate::error::Result;
+use crate::spec::{Header, SpecFile};
+use crate::stage::{Stage, StageOutput};
+use fdmlab_models::thermal::first_order::{self, FirstOrderPlant, SensorNoise, StepProtocol};
+use fdmlab_models::thermal::StepLog;
+use serde::{Deserialize, Serialize};
+
+/// The spec of a `thermal-ident` experiment.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThermalSpec {
+    /// Common header.
+    pub experiment: Header,
+    /// The synthetic hotend that generates the step-test log.
+    pub plant: PlantSpec,
+    /// The step-test protocol.
+    pub protocol: StepProtocol,
+    /// The temperature sensor.
+    #[serde(default = "default_sensor")]
+    pub sensor: SensorNoise,
+    /// A measured log to identify instead of the twin's.
+    #[serde(default)]
+    pub data: Option<DataSpec>,
+    /// Report options.
+    #[serde(default)]
+    pub report: ReportSpec,
+    /// What to identify.
+    #[serde(default)]
+    pub identify: IdentifySpec,
+}
+
+/// `[plant]`: model family and its physical parameters.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantSpec {
+    /// Twin model; `first-order` for now.
+    pub model: String,
+    /// Steady-state rise at full duty, °C.
+    pub gain_c: f64,
+    /// Time constant, s.
+    pub tau_s: f64,
+    /// Ambient, °C.
+    #[serde(default = "default_ambient")]
+    pub ambient_c: f64,
+}
+
+/// `[identify]`: model families to fit.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IdentifySpec {
+    /// Families; `first-order` for now.
+    pub families: Vec<String>,
+}
+
+impl Default for IdentifySpec {
+    fn default() -> Self {
+        IdentifySpec { families: vec!["first-order".into()] }
+    }
+}
+
+/// `[data]`: a measured log (CSV `time_s,heater_duty,fan_duty,temperature_c`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataSpec {
+    /// Path relative to the spec.
+    pub log: String,
+}
+
+/// `[report]`: presentation only (changing it reruns only the `report` stage).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReportSpec {
+    /// Title; default `<name> — first-order hotend identification`.
+    pub title: Option<String>,
+}
+
+fn default_sensor() -> SensorNoise {
+    SensorNoise { sigma_c: 0.0, quantum_c: 0.0 }
+}
+
+fn default_ambient() -> f64 {
+    25.0
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct SimulateParams {
+    plant: FirstOrderPlant,
+    protocol: StepProtocol,
+    sensor: SensorNoise,
+}
+
+impl ThermalSpec {
+    /// Range checks, each located in the spec.
+    fn check(&self, spec: &SpecFile) -> Result<()> {
+        let p = &self.plant;
+        let rules: [(&str, bool, &str); 11] = [
+            ("plant.model", p.model == "first-order", "the twin model must be `first-order`"),
+            ("plant.gain_c", p.gain_c > 0.0 && p.gain_c <= 1000.0, "must be in (0, 1000] °C"),
+            ("plant.tau_s", p.tau_s > 0.0 && p.tau_s <= 10_000.0, "must be in (0, 10000] s"),
+            ("plant.ambient_c", (-40.0..=80.0).contains(&p.ambient_c), "must be within -40..80 °C"),
+            ("protocol.duty", (0.0..=1.0).contains(&self.protocol.duty) && self.protocol.duty > 0.0, "must be in (0, 1]"),
+            ("protocol.heat_s", self.protocol.heat_s > 0.0 && self.protocol.heat_s <= 86_400.0, "must be in (0, 86400] s"),
+            ("protocol.cool_s", (0.0..=86_400.0).contains(&self.protocol.cool_s), "must be within 0..86400 s"),
+            ("protocol.dt_s", self.protocol.dt_s > 0.0 && self.protocol.dt_s <= self.protocol.heat_s / 10.0, "must be > 0 and give ≥ 10 samples while heating"),
+            ("sensor.sigma_c", (0.0..=50.0).contains(&self.sensor.sigma_c), "must be within 0..50 °C"),
+            ("sensor.quantum_c", (0.0..=10.0).contains(&self.sensor.quantum_c), "must be within 0..10 °C"),
+            ("identify.families", self.identify.families.iter().all(|f| f == "first-order") && !self.identify.families.is_empty(), "known families: first-order"),
+        ];
+        for (key, ok, why) in rules {
+            if !ok {
+                return Err(spec.bad_value(key, why));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Validate the spec and expand it into stages.
+pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
+    let s: ThermalSpec = spec.parse()?;
+    s.check(spec)?;
+    let plant = FirstOrderPlant { gain_c: s.plant.gain_c, tau_s: s.plant.tau_s, ambient_c: s.plant.ambient_c };
+    let sim = SimulateParams { plant, protocol: s.protocol, sensor: s.sensor };
+    let sim_params = serde_json::to_value(&sim).map_err(|e| spec.bad_value("plant", e.to_string()))?;
+    let title = s.report.title.clone().unwrap_or_else(|| format!("{} — first-order hotend identification", s.experiment.name));
+    let source = match &s.data {
+        Some(d) => {
+            let path = spec.input_file("data.log", &d.log)?;
+            let label = d.log.clone();
+            Stage::new("ingest", 1, serde_json::json!({ "log": d.log }), move |input| {
+                let bytes = input.file(&path)?;
+                let log = fdmlab_datasets::thermal_log::read_step_log(&String::from_utf8_lossy(&bytes), &label)?;
+                StageOutput::default().add_json("log.json", &log)
+            })
+            .reading(vec![spec.input_file("data.log", &d.log)?])
+        }
+        None => simulate_stage(sim_params),
+    };
+    let src: &'static str = if s.data.is_some() { "ingest" } else { "simulate" };
+    Ok(vec![
+        source,
+        Stage::new("identify", 1, serde_json::json!({ "families": s.identify.families }), move |input| {
+            let log: StepLog = input.json(src, "log.json")?;
+            let fit = first_order::fit(&log)?;
+            Ok(StageOutput::default()
+                .add_json("first-order.json", &fit)?
+                .metric("fit_percent", fit.fit_percent)
+                .metric("rms_c", fit.rms_c)
+                .metric("gain_c", fit.plant.gain_c)
+                .metric("tau_s", fit.plant.tau_s))
+        })
+        .after(&[src]),
+        Stage::new("report", 1, serde_json::json!({ "title": title }), move |input| {
+            let log: StepLog = input.json(src, "log.json")?;
+            let truth: Option<FirstOrderPlant> = if src == "simulate" { Some(input.json("simulate", "truth.json")?) } else { None };
+            let fit: first_order::FirstOrderFit = input.json("identify", "first-order.json")?;
+            let title = input.params.get("title").and_then(|t| t.as_str()).unwrap_or("thermal identification");
+            StageOutput::default().add_report(&fdmlab_reports::thermal::first_order_report(title, &log, &fit, truth.as_ref()))
+        })
+        .after(&[src, "identify"]),
+    ])
+}
+
+/// The twin's step test as a stage.
+fn simulate_stage(sim_params: serde_json::Value) -> Stage {
+        Stage::new("simulate", 1, sim_params, |input| {
+            let p: SimulateParams = input.params()?;
+            let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
+            let csv = fdmlab_datasets::csv::write_columns(
+                &["time_s", "heater_duty", "fan_duty", "temperature_c"],
+                &[&log.time_s, &log.heater_duty, &log.fan_duty, &log.temperature_c],
+            );
+            StageOutput::default().add("log.csv", "text/csv", csv.into_bytes()).add_json("log.json", &log)?.add_json("truth.json", &p.plant)
+        })
+}

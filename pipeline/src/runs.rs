@@ -1,0 +1,327 @@
+//! Run records (`runs/<run-id>/run.json`), lock files next to specs, listing,
+//! and diffs between runs.
+
+use crate::error::{Error, Result};
+use crate::stage::{Artifact, InputRef, OutputRef};
+use crate::store::{Hash, Store};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs;
+
+/// One stage as it happened in a run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRun {
+    /// Stage name.
+    pub name: String,
+    /// Cache key.
+    pub key: String,
+    /// Stage version.
+    pub version: u32,
+    /// True when the result came from the store without running.
+    pub cached: bool,
+    /// Validated parameters.
+    pub params: serde_json::Value,
+    /// Inputs.
+    pub inputs: Vec<InputRef>,
+    /// Outputs.
+    pub outputs: Vec<OutputRef>,
+    /// Scalar results.
+    pub metrics: BTreeMap<String, f64>,
+    /// Wall time in this run, s (≈ 0 when cached).
+    pub wall_s: f64,
+}
+
+/// The record of one `fdmlab run` or artifact-producing command.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    /// Run id: `YYYYMMDD-HHMMSS.micros-<6 hex>` (UTC), sortable by start time.
+    pub id: String,
+    /// Experiment name (or the command for one-shot commands).
+    pub experiment: String,
+    /// Experiment kind (`command` for one-shot commands).
+    pub kind: String,
+    /// Spec path as given (empty for commands).
+    pub spec_path: String,
+    /// blake3 of the spec text (or of the command's parameters).
+    pub spec_hash: String,
+    /// Seed.
+    pub seed: u64,
+    /// fdmlab version that ran it.
+    pub fdmlab_version: String,
+    /// `git rev-parse HEAD` of the spec's folder, when available.
+    pub git_rev: Option<String>,
+    /// Start time, UTC, ISO 8601.
+    pub started_at: String,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Stages in execution order.
+    pub stages: Vec<StageRun>,
+    /// Where the reports were materialised, if any.
+    pub reports_dir: Option<String>,
+}
+
+impl RunRecord {
+    /// Number of stages that actually ran (not cached).
+    pub fn stages_run(&self) -> usize {
+        self.stages.iter().filter(|s| !s.cached).count()
+    }
+    /// Every blob hash the run references (inputs and outputs).
+    pub fn blobs(&self) -> impl Iterator<Item = &Hash> {
+        self.stages.iter().flat_map(|s| s.inputs.iter().map(|i| &i.hash).chain(s.outputs.iter().map(|o| &o.hash)))
+    }
+}
+
+/// Create a fresh run folder and return its id (unique even for runs started
+/// in the same second by several processes).
+pub fn new_run_id(store: &Store) -> Result<String> {
+    let runs = store.root().join("runs");
+    for attempt in 0..100u32 {
+        let seed = format!("{}-{attempt}", crate::store::unique_name("run"));
+        let suffix = &Hash::of(seed.as_bytes()).0[..6];
+        let id = format!("{}-{suffix}", compact_utc_now());
+        match fs::create_dir(runs.join(&id)) {
+            Ok(()) => return Ok(id),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(Error::io(&runs.join(&id), e)),
+        }
+    }
+    Err(Error::Store("could not allocate a run id".into()))
+}
+
+/// Write a run record atomically.
+pub fn write_record(store: &Store, record: &RunRecord) -> Result<()> {
+    let path = store.root().join("runs").join(&record.id).join("run.json");
+    let bytes = serde_json::to_vec_pretty(record).map_err(|e| Error::Store(e.to_string()))?;
+    store.write_atomic(&path, &bytes)
+}
+
+/// Every readable run record, oldest first.
+pub fn list(store: &Store) -> Vec<RunRecord> {
+    let mut out: Vec<RunRecord> = fs::read_dir(store.root().join("runs"))
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok())
+        .filter_map(|e| fs::read(e.path().join("run.json")).ok())
+        .filter_map(|b| serde_json::from_slice(&b).ok())
+        .collect();
+    out.sort_by(|a: &RunRecord, b| a.id.cmp(&b.id));
+    out
+}
+
+/// Find a run by id or unique id prefix; `latest` is the newest run.
+pub fn find(store: &Store, id: &str) -> Result<RunRecord> {
+    let runs = list(store);
+    if id == "latest" {
+        return runs.into_iter().last().ok_or_else(|| Error::bad_input("the store has no run yet"));
+    }
+    let matches: Vec<RunRecord> = runs.into_iter().filter(|r| r.id.starts_with(id)).collect();
+    match matches.len() {
+        1 => Ok(matches.into_iter().next().expect("one match")),
+        0 => Err(Error::bad_input(format!("no run `{id}` (see `fdmlab runs list`)"))),
+        n => Err(Error::bad_input(format!("`{id}` matches {n} runs; give more of the id"))),
+    }
+}
+
+/// Record a one-shot command that produced artifacts (e.g. `ka train`), so its
+/// outputs are versioned and the run can be reproduced from its parameters.
+pub fn record_command(
+    store: &Store,
+    command: &str,
+    params: serde_json::Value,
+    inputs: Vec<InputRef>,
+    artifacts: Vec<Artifact>,
+    metrics: BTreeMap<String, f64>,
+    wall_s: f64,
+) -> Result<RunRecord> {
+    let mut outputs = Vec::new();
+    for a in artifacts {
+        let hash = store.put(&a.bytes)?;
+        outputs.push(OutputRef { name: a.name, hash, media_type: a.media_type, bytes: a.bytes.len() as u64 });
+    }
+    let spec_hash = Hash::of(params.to_string().as_bytes()).0;
+    let key = Hash::of(format!("{command}{spec_hash}").as_bytes()).0;
+    let stage = StageRun { name: command.to_string(), key, version: 1, cached: false, params, inputs, outputs, metrics, wall_s };
+    let record = RunRecord {
+        id: new_run_id(store)?,
+        experiment: command.to_string(),
+        kind: "command".into(),
+        spec_path: String::new(),
+        spec_hash,
+        seed: 0,
+        fdmlab_version: env!("CARGO_PKG_VERSION").into(),
+        git_rev: None,
+        started_at: iso_utc_now(),
+        wall_s,
+        stages: vec![stage],
+        reports_dir: None,
+    };
+    write_record(store, &record)?;
+    Ok(record)
+}
+
+/// Blobs and stage keys referenced by records.
+#[derive(Debug, Default)]
+pub(crate) struct References {
+    pub blobs: BTreeSet<Hash>,
+    pub stage_keys: BTreeSet<String>,
+    pub bad_records: Vec<String>,
+}
+
+/// What run records reference (used by `gc`).
+pub(crate) fn referenced_by_runs(store: &Store) -> References {
+    let mut refs = References::default();
+    for r in list(store) {
+        refs.blobs.extend(r.blobs().cloned());
+        refs.stage_keys.extend(r.stages.iter().map(|s| s.key.clone()));
+    }
+    refs
+}
+
+/// What run records and stage records reference (used by `verify`).
+pub(crate) fn referenced(store: &Store) -> References {
+    let mut refs = References::default();
+    for dir in ["runs"] {
+        for e in fs::read_dir(store.root().join(dir)).into_iter().flatten().filter_map(|e| e.ok()) {
+            let p = e.path().join("run.json");
+            match fs::read(&p).ok().and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok()) {
+                Some(r) => refs.blobs.extend(r.blobs().cloned()),
+                None if p.exists() => refs.bad_records.push(p.display().to_string()),
+                None => {} // a run still starting, or one that failed before writing its record
+            }
+        }
+    }
+    for e in fs::read_dir(store.root().join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
+        match fs::read(e.path()).ok().and_then(|b| serde_json::from_slice::<crate::stage::StageRecord>(&b).ok()) {
+            Some(s) => refs.blobs.extend(s.inputs.iter().map(|i| i.hash.clone()).chain(s.outputs.iter().map(|o| o.hash.clone()))),
+            None => refs.bad_records.push(e.path().display().to_string()),
+        }
+    }
+    refs
+}
+
+/// One line of a run diff.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiffRow {
+    /// `param`, `metric`, `artifact` or `stage`.
+    pub what: String,
+    /// `stage` or `stage.name`.
+    pub name: String,
+    /// Value in run A (None = absent).
+    pub a: Option<String>,
+    /// Value in run B.
+    pub b: Option<String>,
+    /// True when the values differ.
+    pub changed: bool,
+}
+
+/// Parameters, metrics and artifact hashes of two runs side by side.
+pub fn diff(a: &RunRecord, b: &RunRecord) -> Vec<DiffRow> {
+    let mut rows = Vec::new();
+    let mut push = |what: &str, name: String, va: Option<String>, vb: Option<String>| {
+        let changed = va != vb;
+        rows.push(DiffRow { what: what.into(), name, a: va, b: vb, changed });
+    };
+    let flat = |r: &RunRecord| {
+        let mut params = BTreeMap::new();
+        let mut metrics = BTreeMap::new();
+        let mut artifacts = BTreeMap::new();
+        let mut keys = BTreeMap::new();
+        for s in &r.stages {
+            keys.insert(s.name.clone(), s.key.clone());
+            flatten_json(&format!("{}.", s.name), &s.params, &mut params);
+            for (k, v) in &s.metrics {
+                metrics.insert(format!("{}.{k}", s.name), v.to_string());
+            }
+            for o in &s.outputs {
+                artifacts.insert(format!("{}/{}", s.name, o.name), o.hash.0.clone());
+            }
+        }
+        (keys, params, metrics, artifacts)
+    };
+    let (ka, pa, ma, aa) = flat(a);
+    let (kb, pb, mb, ab) = flat(b);
+    for (what, x, y) in [("stage", ka, kb), ("param", pa, pb), ("metric", ma, mb), ("artifact", aa, ab)] {
+        let names: BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+        for n in names {
+            push(what, n.clone(), x.get(n).cloned(), y.get(n).cloned());
+        }
+    }
+    rows
+}
+
+fn flatten_json(prefix: &str, v: &serde_json::Value, out: &mut BTreeMap<String, String>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, v) in m {
+                flatten_json(&format!("{prefix}{k}."), v, out);
+            }
+        }
+        other => {
+            out.insert(prefix.trim_end_matches('.').to_string(), other.to_string());
+        }
+    }
+}
+
+/// Lock file contents (`<spec>.lock`): resolved stage keys and output hashes,
+/// deterministic (no times), so `git diff` shows what changed between runs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LockFile {
+    /// Experiment name.
+    pub experiment: String,
+    /// Kind.
+    pub kind: String,
+    /// blake3 of the spec text.
+    pub spec_hash: String,
+    /// Stages: name → key and outputs.
+    pub stages: BTreeMap<String, LockStage>,
+}
+
+/// A stage in a lock file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LockStage {
+    /// Cache key.
+    pub key: String,
+    /// Output name → hash.
+    pub outputs: BTreeMap<String, String>,
+}
+
+impl LockFile {
+    /// The lock of a run.
+    pub fn of(record: &RunRecord) -> LockFile {
+        let stages = record
+            .stages
+            .iter()
+            .map(|s| (s.name.clone(), LockStage { key: s.key.clone(), outputs: s.outputs.iter().map(|o| (o.name.clone(), o.hash.0.clone())).collect() }))
+            .collect();
+        LockFile { experiment: record.experiment.clone(), kind: record.kind.clone(), spec_hash: record.spec_hash.clone(), stages }
+    }
+}
+
+/// Current UTC time as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn iso_utc_now() -> String {
+    let (y, mo, d, h, mi, s) = utc_now();
+    format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}Z")
+}
+
+/// `YYYYMMDD-HHMMSS.micros`: sorts by start time, even within one second.
+fn compact_utc_now() -> String {
+    let (y, mo, d, h, mi, s) = utc_now();
+    let micros = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_micros()).unwrap_or(0);
+    format!("{y:04}{mo:02}{d:02}-{h:02}{mi:02}{s:02}.{micros:06}")
+}
+
+fn utc_now() -> (i64, u32, u32, u32, u32, u32) {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs() as i64).unwrap_or(0);
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Hinnant, "chrono-compatible low-level date algorithms").
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    (y, m, d, (rem / 3600) as u32, ((rem % 3600) / 60) as u32, (rem % 60) as u32)
+}

@@ -1,0 +1,188 @@
+//! Stages: the units of work a spec expands to. A stage's cache key is the
+//! blake3 hash of (kind, stage name, stage version, validated parameters,
+//! input artifact hashes): same key, same outputs, so a stored result is reused.
+
+use crate::error::{Error, Result};
+use crate::store::{Hash, Store};
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Function that runs a stage.
+pub type StageFn = Box<dyn Fn(&StageInput) -> Result<StageOutput> + Send + Sync>;
+
+/// One stage of an experiment.
+pub struct Stage {
+    /// Name, unique within the spec (`[a-z0-9-]`).
+    pub name: String,
+    /// Bump when the code changes what the stage outputs.
+    pub version: u32,
+    /// Validated parameters (part of the key).
+    pub params: serde_json::Value,
+    /// Upstream stages whose outputs this stage reads.
+    pub deps: Vec<String>,
+    /// External input files (hashed into the key and stored as blobs).
+    pub files: Vec<PathBuf>,
+    /// The work.
+    pub run: StageFn,
+}
+
+impl Stage {
+    /// A stage with no deps and no files.
+    pub fn new(name: &str, version: u32, params: serde_json::Value, run: impl Fn(&StageInput) -> Result<StageOutput> + Send + Sync + 'static) -> Stage {
+        Stage { name: name.to_string(), version, params, deps: Vec::new(), files: Vec::new(), run: Box::new(run) }
+    }
+    /// Add upstream stages (builder style).
+    pub fn after(mut self, deps: &[&str]) -> Stage {
+        self.deps.extend(deps.iter().map(|d| d.to_string()));
+        self
+    }
+    /// Add external input files (builder style).
+    pub fn reading(mut self, files: Vec<PathBuf>) -> Stage {
+        self.files.extend(files);
+        self
+    }
+}
+
+/// A named input of a stage and its hash.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct InputRef {
+    /// `stage/output` for upstream outputs, `file:<path>` for external files.
+    pub name: String,
+    /// Content hash.
+    pub hash: Hash,
+}
+
+/// An artifact a stage produced, as recorded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OutputRef {
+    /// Output name, unique within the stage (a safe file name).
+    pub name: String,
+    /// Content hash.
+    pub hash: Hash,
+    /// Media type (`application/json`, `text/csv`, `text/x-gcode`, ...).
+    pub media_type: String,
+    /// Size in bytes.
+    pub bytes: u64,
+}
+
+/// What the store remembers of a finished stage (`stages/<key>.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRecord {
+    /// Cache key.
+    pub key: String,
+    /// Experiment kind.
+    pub kind: String,
+    /// Stage name.
+    pub stage: String,
+    /// Stage version.
+    pub version: u32,
+    /// Validated parameters.
+    pub params: serde_json::Value,
+    /// Inputs.
+    pub inputs: Vec<InputRef>,
+    /// Outputs.
+    pub outputs: Vec<OutputRef>,
+    /// Scalar results.
+    pub metrics: BTreeMap<String, f64>,
+    /// Wall time of the run that produced it, s.
+    pub wall_s: f64,
+}
+
+/// A produced artifact before it is stored.
+#[derive(Debug, Clone)]
+pub struct Artifact {
+    /// Output name (a safe file name).
+    pub name: String,
+    /// Media type.
+    pub media_type: String,
+    /// Content.
+    pub bytes: Vec<u8>,
+}
+
+/// What a stage returns.
+#[derive(Debug, Clone, Default)]
+pub struct StageOutput {
+    /// Artifacts, in order.
+    pub artifacts: Vec<Artifact>,
+    /// Scalar results.
+    pub metrics: BTreeMap<String, f64>,
+}
+
+impl StageOutput {
+    /// Add an artifact (builder style).
+    pub fn add(mut self, name: &str, media_type: &str, bytes: Vec<u8>) -> Self {
+        self.artifacts.push(Artifact { name: name.to_string(), media_type: media_type.to_string(), bytes });
+        self
+    }
+    /// Add a value as pretty JSON (builder style).
+    pub fn add_json<T: Serialize>(self, name: &str, value: &T) -> Result<Self> {
+        let bytes = serde_json::to_vec_pretty(value).map_err(|e| Error::Stage { stage: name.to_string(), message: e.to_string() })?;
+        Ok(self.add(name, "application/json", bytes))
+    }
+    /// Add a scalar metric (builder style).
+    pub fn metric(mut self, name: &str, value: f64) -> Self {
+        self.metrics.insert(name.to_string(), value);
+        self
+    }
+    /// Add every file of a rendered report (builder style).
+    pub fn add_report(mut self, report: &fdmlab_reports::Report) -> Result<Self> {
+        let files = report.render().map_err(|e| Error::Stage { stage: "report".into(), message: e.to_string() })?;
+        for f in files {
+            self.artifacts.push(Artifact { name: f.name, media_type: f.media_type.to_string(), bytes: f.bytes });
+        }
+        Ok(self)
+    }
+}
+
+/// What a running stage can read.
+pub struct StageInput<'a> {
+    /// The spec's seed.
+    pub seed: u64,
+    /// This stage's validated parameters.
+    pub params: &'a serde_json::Value,
+    pub(crate) store: &'a Store,
+    pub(crate) upstream: &'a BTreeMap<String, Vec<OutputRef>>,
+    pub(crate) files: &'a BTreeMap<PathBuf, Hash>,
+    pub(crate) stage: &'a str,
+}
+
+impl StageInput<'_> {
+    /// Bytes of output `name` of upstream stage `stage` (verified on read).
+    pub fn output(&self, stage: &str, name: &str) -> Result<Vec<u8>> {
+        let out = self
+            .upstream
+            .get(stage)
+            .and_then(|outs| outs.iter().find(|o| o.name == name))
+            .ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("no input `{stage}/{name}` (declare the dependency)") })?;
+        self.store.get(&out.hash)
+    }
+    /// Output `name` of `stage`, deserialised from JSON.
+    pub fn json<T: DeserializeOwned>(&self, stage: &str, name: &str) -> Result<T> {
+        let bytes = self.output(stage, name)?;
+        serde_json::from_slice(&bytes).map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("`{stage}/{name}` is not the expected JSON: {e}") })
+    }
+    /// Bytes of a declared external input file (as hashed when the stage was keyed).
+    pub fn file(&self, path: &std::path::Path) -> Result<Vec<u8>> {
+        let hash = self.files.get(path).ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("file `{}` was not declared as an input", path.display()) })?;
+        self.store.get(hash)
+    }
+    /// This stage's parameters deserialised into `T`.
+    pub fn params<T: DeserializeOwned>(&self) -> Result<T> {
+        serde_json::from_value(self.params.clone()).map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("parameters: {e}") })
+    }
+}
+
+/// The cache key of a stage.
+pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
+    let material = serde_json::json!({
+        "kind": kind,
+        "stage": stage.name,
+        "version": stage.version,
+        "params": stage.params,
+        "inputs": inputs,
+    });
+    // serde_json maps are ordered (BTreeMap), so this text is canonical.
+    Hash::of(material.to_string().as_bytes()).0
+}

@@ -1,0 +1,57 @@
+//! `fdmlab bench …`: performance figures for the README, measured in-process
+//! on a release build. One subcommand per domain.
+
+use super::Ctx;
+use fdmlab_pipeline::engine::{self, RunOptions};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// `fdmlab bench …`
+#[derive(clap::Subcommand)]
+pub enum BenchCommand {
+    /// Engine: cold run vs fully cached rerun of a spec in a scratch store.
+    Engine {
+        /// Spec to run (default: the bundled first-order thermal experiment).
+        #[arg(default_value = "experiments/thermal-first-order.toml")]
+        spec: PathBuf,
+        /// Cached reruns to average.
+        #[arg(long, default_value_t = 20)]
+        repeat: u32,
+    },
+}
+
+/// Dispatch a bench.
+pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
+    match cmd {
+        BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
+    }
+}
+
+fn engine_bench(spec: &std::path::Path, repeat: u32, ctx: &Ctx) -> anyhow::Result<()> {
+    let scratch = tempdir()?;
+    // Run a copy of the spec so its lock file lands in the scratch folder.
+    let copy = scratch.join(spec.file_name().unwrap_or_default());
+    std::fs::copy(spec, &copy)?;
+    let store = fdmlab_pipeline::Store::open(&scratch.join("store"))?;
+    let opts = RunOptions::default();
+    let t = Instant::now();
+    let cold = engine::run(&store, &copy, &opts)?;
+    let cold_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let mut stages_run = 0;
+    for _ in 0..repeat {
+        stages_run += engine::run(&store, &copy, &opts)?.stages_run();
+    }
+    let warm_s = t.elapsed().as_secs_f64() / f64::from(repeat);
+    let _ = std::fs::remove_dir_all(&scratch);
+    let value = serde_json::json!({"spec": spec.display().to_string(), "stages": cold.stages.len(), "cold_s": cold_s, "cached_s": warm_s, "cached_stages_run": stages_run, "speedup": cold_s / warm_s});
+    ctx.emit(&value, || format!("{}: cold run {:.4} s, cached rerun {:.4} s ({} stages ran), {:.0}× faster\n", spec.display(), cold_s, warm_s, stages_run, cold_s / warm_s));
+    Ok(())
+}
+
+/// A fresh scratch folder under the system temp dir.
+pub fn tempdir() -> anyhow::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(fdmlab_pipeline::store::unique_name("fdmlab-bench"));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}

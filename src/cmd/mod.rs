@@ -1,0 +1,59 @@
+//! Subcommands, one module per domain, and what they share.
+
+pub mod bench;
+pub mod run;
+pub mod runs;
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+/// What every command gets: where the store is and how to print.
+pub struct Ctx {
+    /// Store folder.
+    pub store_dir: PathBuf,
+    /// `--json` was given.
+    pub json: bool,
+}
+
+impl Ctx {
+    /// Resolve the store folder: `--store`, else `$FDMLAB_STORE`, else `./.fdmlab`.
+    pub fn new(store: Option<PathBuf>, json: bool) -> Ctx {
+        let store_dir = store.or_else(|| std::env::var_os("FDMLAB_STORE").map(PathBuf::from)).unwrap_or_else(|| PathBuf::from(".fdmlab"));
+        Ctx { store_dir, json }
+    }
+    /// Open the store (creating it).
+    pub fn store(&self) -> anyhow::Result<fdmlab_pipeline::Store> {
+        Ok(fdmlab_pipeline::Store::open(&self.store_dir)?)
+    }
+    /// Print `value` as JSON with `--json`, else the human text.
+    pub fn emit(&self, value: &serde_json::Value, human: impl FnOnce() -> String) {
+        if self.json {
+            println!("{value}");
+        } else {
+            let text = human();
+            if !text.is_empty() {
+                println!("{}", text.trim_end());
+            }
+        }
+    }
+    /// Progress bars only on a terminal, and never with `--json`.
+    pub fn progress(&self) -> bool {
+        !self.json && std::io::stdout().is_terminal()
+    }
+}
+
+/// Exit code of an error: 2 when the input is at fault, else 1.
+pub fn exit_code(e: &anyhow::Error) -> u8 {
+    for cause in e.chain() {
+        if let Some(p) = cause.downcast_ref::<fdmlab_pipeline::Error>() {
+            return if p.is_bad_input() { 2 } else { 1 };
+        }
+        if let Some(d) = cause.downcast_ref::<fdmlab_datasets::DatasetError>() {
+            return if d.is_bad_input() { 2 } else { 1 };
+        }
+        if let Some(m) = cause.downcast_ref::<fdmlab_models::ModelError>() {
+            return if matches!(m, fdmlab_models::ModelError::InvalidParameter { .. }) { 2 } else { 1 };
+        }
+    }
+    1
+}

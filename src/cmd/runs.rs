@@ -1,0 +1,145 @@
+//! `fdmlab runs`, `diff`, `verify`, `gc`, `cat`: looking into the store.
+
+use super::Ctx;
+use anyhow::bail;
+use fdmlab_pipeline::runs;
+use std::io::Write;
+
+/// `fdmlab runs …`
+#[derive(clap::Subcommand)]
+pub enum RunsCommand {
+    /// One line per run, oldest first.
+    List,
+    /// A run record in full (`latest` for the newest).
+    Show {
+        /// Run id or unique prefix.
+        id: String,
+    },
+}
+
+/// Arguments of `fdmlab diff`.
+#[derive(clap::Args)]
+pub struct DiffArgs {
+    /// First run id (or prefix, or `latest`).
+    pub a: String,
+    /// Second run id.
+    pub b: String,
+    /// Show unchanged rows too.
+    #[arg(long)]
+    pub all: bool,
+}
+
+/// Arguments of `fdmlab cat`.
+#[derive(clap::Args)]
+pub struct CatArgs {
+    /// Blob hash or unique prefix (≥ 6 hex digits).
+    pub hash: String,
+}
+
+/// `fdmlab runs list|show`.
+pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    match cmd {
+        RunsCommand::List => {
+            let list = runs::list(&store);
+            let value = serde_json::Value::Array(
+                list.iter()
+                    .map(|r| serde_json::json!({"id": r.id, "experiment": r.experiment, "kind": r.kind, "started_at": r.started_at, "stages": r.stages.len(), "stages_run": r.stages_run(), "wall_s": r.wall_s}))
+                    .collect(),
+            );
+            ctx.emit(&value, || {
+                list.iter().map(|r| format!("{}  {:<28} {:<18} {}/{} ran  {:.2} s\n", r.id, r.experiment, r.kind, r.stages_run(), r.stages.len(), r.wall_s)).collect()
+            });
+        }
+        RunsCommand::Show { id } => {
+            let r = runs::find(&store, &id)?;
+            let value = serde_json::to_value(&r)?;
+            ctx.emit(&value, || {
+                let mut s = format!("run {}\nexperiment {} ({})\nspec {} [{}]\nfdmlab {}  git {}\nseed {}  started {}  {:.3} s\n", r.id, r.experiment, r.kind, r.spec_path, &r.spec_hash[..12], r.fdmlab_version, r.git_rev.as_deref().unwrap_or("-"), r.seed, r.started_at, r.wall_s);
+                for st in &r.stages {
+                    s += &format!("\n[{}] key {} {} {:.3} s\n", st.name, &st.key[..16], if st.cached { "cached" } else { "ran" }, st.wall_s);
+                    for i in &st.inputs {
+                        s += &format!("  in  {} {}\n", &i.hash.0[..16], i.name);
+                    }
+                    for o in &st.outputs {
+                        s += &format!("  out {} {} ({}, {} B)\n", &o.hash.0[..16], o.name, o.media_type, o.bytes);
+                    }
+                    for (k, v) in &st.metrics {
+                        s += &format!("  metric {k} = {v}\n");
+                    }
+                }
+                if let Some(d) = &r.reports_dir {
+                    s += &format!("\nreport: {d}\n");
+                }
+                s
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `fdmlab diff A B`.
+pub fn diff(args: DiffArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let a = runs::find(&store, &args.a)?;
+    let b = runs::find(&store, &args.b)?;
+    let rows: Vec<_> = runs::diff(&a, &b).into_iter().filter(|r| args.all || r.changed).collect();
+    let value = serde_json::json!({"a": a.id, "b": b.id, "rows": rows});
+    ctx.emit(&value, || {
+        let short = |v: &Option<String>| v.as_deref().map(|s| if s.len() == 64 { s[..12].to_string() } else { s.to_string() }).unwrap_or_else(|| "-".into());
+        let mut s = format!("{:<9} {:<40} {:<24} {:<24}\n", "", "name", a.id, b.id);
+        for r in &rows {
+            s += &format!("{}{:<8} {:<40} {:<24} {:<24}\n", if r.changed { "*" } else { " " }, r.what, r.name, short(&r.a), short(&r.b));
+        }
+        if rows.is_empty() {
+            s += "no differences\n";
+        }
+        s
+    });
+    Ok(())
+}
+
+/// `fdmlab verify`: exit 1 when anything is corrupt or missing.
+pub fn verify(ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let report = store.verify();
+    ctx.emit(&serde_json::to_value(&report)?, || {
+        let mut s = format!("checked {} blob(s)\n", report.checked);
+        for h in &report.corrupt {
+            s += &format!("corrupt {h}\n");
+        }
+        for h in &report.missing {
+            s += &format!("missing {h}\n");
+        }
+        for r in &report.bad_records {
+            s += &format!("unreadable record {r}\n");
+        }
+        if report.is_clean() {
+            s += "store is clean\n";
+        }
+        s
+    });
+    if !report.is_clean() {
+        bail!("store is damaged: {} corrupt, {} missing, {} unreadable record(s)", report.corrupt.len(), report.missing.len(), report.bad_records.len());
+    }
+    Ok(())
+}
+
+/// `fdmlab gc`.
+pub fn gc(ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let report = store.gc()?;
+    ctx.emit(&serde_json::to_value(&report)?, || {
+        format!("removed {} blob(s) ({} B), {} stage record(s), {} temp file(s)\n", report.removed_blobs, report.freed_bytes, report.removed_stage_records, report.removed_temp)
+    });
+    Ok(())
+}
+
+/// `fdmlab cat HASH`: raw bytes to stdout.
+pub fn cat(args: CatArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let hash = store.resolve(&args.hash)?;
+    let bytes = store.get(&hash)?;
+    std::io::stdout().write_all(&bytes)?;
+    Ok(())
+}
