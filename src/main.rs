@@ -43,6 +43,15 @@ enum Command {
     /// Performance benchmarks (use a release build).
     #[command(subcommand)]
     Bench(cmd::bench::BenchCommand),
+    /// Calibration G-code.
+    #[command(subcommand)]
+    Gcode(cmd::pa::GcodeCommand),
+    /// Pressure advance K_A: twin grid, scores, regressor training and prediction.
+    #[command(subcommand)]
+    Ka(cmd::pa::KaCommand),
+    /// Export trained models for firmware, slicers and daemons.
+    #[command(subcommand)]
+    Export(cmd::pa::ExportCommand),
     /// Print shell completions.
     Completions {
         /// Shell to generate for.
@@ -62,6 +71,9 @@ fn main() -> ExitCode {
         Command::Gc => cmd::runs::gc(&ctx),
         Command::Cat(a) => cmd::runs::cat(a, &ctx),
         Command::Bench(c) => cmd::bench::bench(c, &ctx),
+        Command::Gcode(c) => cmd::pa::gcode(c, &ctx),
+        Command::Ka(c) => cmd::pa::ka(c, &ctx),
+        Command::Export(c) => cmd::pa::export_cmd(c, &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

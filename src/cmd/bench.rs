@@ -18,12 +18,21 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         repeat: u32,
     },
+    /// Pressure advance: K_A training on the twin's grid, pattern generation, C inference.
+    Pa {
+        #[arg(long, default_value_t = 500)]
+        epochs: usize,
+        /// PyTorch comparison script (benches/pa_torch.py); python from $FDMLAB_PYTHON.
+        #[arg(long)]
+        torch: Option<PathBuf>,
+    },
 }
 
 /// Dispatch a bench.
 pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
+        BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
     }
 }
 

@@ -1,6 +1,7 @@
 //! Subcommands, one module per domain, and what they share.
 
 pub mod bench;
+pub mod pa;
 pub mod run;
 pub mod runs;
 

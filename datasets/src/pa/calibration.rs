@@ -568,39 +568,26 @@ fn tower(em: &mut Emitter, p: &Printer, c: &Calibration, ks: &[f64], e_per_mm: f
 mod tests {
     use super::*;
 
-    /// Minimal modal reader for these tests (absolute XYZ, relative E); replaced by
-    /// `crate::gcode` once it lands. Returns per line: (command, words, text).
-    fn moves(text: &str) -> Vec<(String, [f64; 4], [f64; 4], f64, Option<String>)> {
-        let mut pos = [0.0; 4];
-        let mut feed = 0.0;
-        let mut k: Option<String> = None;
+    /// Moves of a program read back with the shared reader, each with the K_A in
+    /// force (from `M900 K`, `SET_PRESSURE_ADVANCE ADVANCE=` or `M572 S`) and the
+    /// printing acceleration in force.
+    fn moves(text: &str) -> Vec<(String, [f64; 4], [f64; 4], f64, Option<f64>, Option<f64>)> {
+        let program = crate::gcode::parse(text, "cal.gcode").expect("writer output parses");
+        let mut m = crate::gcode::Machine::default();
+        let (mut k, mut accel) = (None, None);
         let mut out = vec![];
-        for line in text.lines() {
-            let code = line.split(';').next().unwrap_or("").trim();
-            if code.starts_with("M900") || code.starts_with("SET_PRESSURE_ADVANCE") || code.starts_with("M572") {
-                k = Some(code.to_string());
+        for c in &program {
+            match c.name.as_str() {
+                "M900" => k = c.word('K'),
+                "M572" => k = c.word('S'),
+                "SET_PRESSURE_ADVANCE" => k = c.arg("ADVANCE").and_then(|v| v.parse().ok()),
+                "M204" => accel = c.word('S').or(c.word('P')),
+                "SET_VELOCITY_LIMIT" => accel = c.arg("ACCEL").and_then(|v| v.parse().ok()),
+                _ => {}
             }
-            let mut it = code.split_whitespace();
-            let Some(cmd) = it.next() else { continue };
-            if cmd != "G0" && cmd != "G1" {
-                continue;
+            if let Some(mv) = m.apply(c) {
+                out.push((if mv.rapid { "G0" } else { "G1" }.to_string(), mv.from, mv.to, mv.feed_mm_s, k, accel));
             }
-            let from = pos;
-            let mut e = 0.0;
-            for w in it {
-                let (c, v) = w.split_at(1);
-                let v: f64 = v.parse().unwrap_or(f64::NAN);
-                match c {
-                    "X" => pos[0] = v,
-                    "Y" => pos[1] = v,
-                    "Z" => pos[2] = v,
-                    "E" => e = v,
-                    "F" => feed = v / 60.0,
-                    _ => {}
-                }
-            }
-            pos[3] += e;
-            out.push((cmd.to_string(), from, pos, feed, k.clone()));
         }
         out
     }
@@ -626,7 +613,8 @@ mod tests {
                 assert!((s.3 - v).abs() < 1e-9);
                 // E rounded to 5 decimals over ≥30 mm: relative error < 1e-5/(30·0.04).
                 assert!(((s.2[3] - s.1[3]) / d - epm).abs() < 1e-6);
-                assert_eq!(s.4.as_deref(), Some(format!("M900 K{}", fmt_k(r.k)).as_str()));
+                assert_eq!(s.4, Some(r.k));
+                assert_eq!(s.5, Some(1000.0));
             }
         }
         // Nothing leaves the bed; accel set once to 1000.
@@ -683,8 +671,7 @@ mod tests {
             let z1 = z0 + c.band_mm - 1e-6;
             let band: Vec<_> = mv.iter().filter(|m| m.2[3] > m.1[3] && m.1[0] > EDGE_MARGIN_MM && m.2[2] >= z0 - 1e-9 && m.2[2] <= z1 && (m.2[0] - m.1[0]).abs() + (m.2[1] - m.1[1]).abs() > 5.0).collect();
             assert_eq!(band.len(), 5 * 12, "band {}", r.index);
-            let want = format!("SET_PRESSURE_ADVANCE ADVANCE={}", fmt_k(r.k));
-            assert!(band.iter().all(|m| m.4.as_deref() == Some(want.as_str())));
+            assert!(band.iter().all(|m| m.4 == Some(r.k) && m.5 == Some(1000.0)));
         }
     }
 }
