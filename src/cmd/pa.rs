@@ -188,6 +188,20 @@ pub enum KaCommand {
         #[arg(long, default_value_t = 10.0)]
         scale: f64,
     },
+    /// Score a calibration print on the extrusion twin (simulated raters) and write a scores CSV.
+    SimulateScores {
+        #[arg(long)]
+        manifest: PathBuf,
+        /// The twin plant's true K (s).
+        #[arg(long)]
+        k_true: f64,
+        #[arg(long, default_value_t = 3)]
+        raters: usize,
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Cross-validate the network against baselines and store the model trained on all rows.
     Train(TrainArgs),
     /// Predict K_A with a stored model.
@@ -321,6 +335,21 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
                     s.kendall_w.map(|w| format!("{w:.3} over {} lines", s.kendall_lines)).unwrap_or_else(|| "n/a".into())
                 )
             });
+            Ok(())
+        }
+        KaCommand::SimulateScores { manifest, k_true, raters, seed, output } => {
+            let mb = read(&manifest)?;
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
+            if !(k_true > 0.0 && k_true <= 10.0) || raters == 0 || raters > 50 {
+                return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
+            }
+            let mut rng = fdmlab_models::rng::seeded(seed, 0);
+            let panel = fdmlab_models::extrusion::Rater::panel(raters, 0.3, 0.5, &mut rng);
+            let k: Vec<f64> = m.regions.iter().map(|r| r.k).collect();
+            let t = fdmlab_models::extrusion::scoring::simulate_print(&m.line, k_true, &k, &panel, &mut rng)?;
+            let names: Vec<String> = (1..=raters).map(|i| format!("rater{i}")).collect();
+            write_file(&output, scores::to_csv(&t, &names, &m).as_bytes())?;
+            ctx.emit(&serde_json::json!({"output": output.display().to_string(), "lines": k.len(), "raters": raters}), || format!("wrote {} ({} lines × {raters} raters)\n", output.display(), k.len()));
             Ok(())
         }
         KaCommand::Train(a) => {

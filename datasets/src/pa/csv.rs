@@ -35,8 +35,8 @@ pub fn read_strings(bytes: &[u8], file: &str) -> Result<StringTable, DatasetErro
     for name in &columns {
         let col = df.column(name.as_str()).map_err(|e| DatasetError::parse(file, 1, name, e.to_string()))?;
         let s = col.str().map_err(|e| DatasetError::parse(file, 1, name, e.to_string()))?;
-        for (r, v) in s.into_iter().enumerate() {
-            rows[r].push(v.map(|v| v.trim().to_string()).filter(|v| !v.is_empty()));
+        for (r, row) in rows.iter_mut().enumerate() {
+            row.push(s.get(r).map(|v| v.trim().to_string()).filter(|v| !v.is_empty()));
         }
     }
     Ok(StringTable { columns, rows })

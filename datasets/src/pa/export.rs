@@ -301,10 +301,21 @@ fn reprap(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError>
 /// or flow through `speed_mm_s` = flow / (layer × 1.2 × nozzle setting).
 fn orca(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
     let get = |name: &str| opts.fixed.iter().find(|(k, _)| k.eq_ignore_ascii_case(name)).and_then(|(_, v)| v.parse::<f64>().ok());
+    let given = |name: &str| opts.fixed.keys().any(|k| k.eq_ignore_ascii_case(name));
+    // Material and temperature not fixed: the default material at the middle of its range.
+    let mut base: Vec<(&str, String)> = Vec::new();
+    let material = opts.fixed.iter().find(|(k, _)| k.eq_ignore_ascii_case(&opts.material_column)).map(|(_, v)| v.clone()).or_else(|| opts.default_material.clone()).or_else(|| materials(model, opts).into_iter().next()).unwrap_or_default();
+    if has(model, &opts.material_column) && !given(&opts.material_column) {
+        base.push((opts.material_column.as_str(), material.clone()));
+    }
+    if has(model, &opts.temp_column) && !given(&opts.temp_column) {
+        let (lo, hi) = temp_range(model, opts, &material)?;
+        base.push((opts.temp_column.as_str(), format!("{}", 0.5 * (lo + hi))));
+    }
     let mut s = String::new();
     for &flow in &opts.flows_mm3_s {
         for &accel in &opts.accels_mm_s2 {
-            let mut over: Vec<(&str, String)> = Vec::new();
+            let mut over: Vec<(&str, String)> = base.clone();
             if has(model, "flow_mm3_s") {
                 over.push(("flow_mm3_s", format!("{flow}")));
             } else if has(model, "speed_mm_s") {

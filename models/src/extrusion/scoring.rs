@@ -132,10 +132,10 @@ pub struct BestK {
 }
 
 /// Most lines on each side of the best one that the local quadratic may use.
-pub const MAX_HALF_WINDOW: usize = 6;
+pub const MAX_HALF_WINDOW: usize = 12;
 
 /// Robust best K_A: a least-squares parabola through the mean scores of the lines
-/// around the best mean score (those above half of it, 2–6 on each side), its vertex
+/// around the best mean score (those above half of it, 2–12 on each side), its vertex
 /// the estimate. Falls back to the best line when the parabola does not open
 /// downwards or its vertex leaves the window.
 pub fn best_k(table: &ScoreTable) -> Result<BestK, ModelError> {
