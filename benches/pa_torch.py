@@ -47,10 +47,10 @@ def main():
     ys = (y - ylo) / (yhi - ylo)
     d = xs.shape[1]
     net = torch.nn.Sequential(
-        torch.nn.Linear(d, 32), torch.nn.ReLU(),
-        torch.nn.Linear(32, 32), torch.nn.ReLU(),
-        torch.nn.Linear(32, 16), torch.nn.Sigmoid(),
-        torch.nn.Linear(16, 1),
+        torch.nn.Linear(d, 64), torch.nn.ReLU(),
+        torch.nn.Linear(64, 64), torch.nn.ReLU(),
+        torch.nn.Linear(64, 32), torch.nn.Sigmoid(),
+        torch.nn.Linear(32, 1),
     )
     opt = torch.optim.Adam(net.parameters(), lr=a.lr, eps=1e-5)
     n = xs.shape[0]

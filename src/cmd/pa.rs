@@ -230,7 +230,7 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 500)]
     pub epochs: usize,
     /// Hidden widths of the three dense layers.
-    #[arg(long, default_value = "32,32,16")]
+    #[arg(long, default_value = "64,64,32")]
     pub hidden: String,
     #[arg(long, default_value_t = 128)]
     pub batch: usize,

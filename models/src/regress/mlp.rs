@@ -16,7 +16,7 @@ pub struct MlpSettings {
 
 impl Default for MlpSettings {
     fn default() -> Self {
-        MlpSettings { hidden: [32, 32, 16], train: TrainConfig::default() }
+        MlpSettings { hidden: [64, 64, 32], train: TrainConfig::default() }
     }
 }
 

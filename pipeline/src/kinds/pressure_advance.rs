@@ -207,7 +207,7 @@ fn d_target() -> String {
     "k_a".into()
 }
 fn d_hidden() -> [usize; 3] {
-    [32, 32, 16]
+    [64, 64, 32]
 }
 fn d_epochs() -> usize {
     500
