@@ -525,7 +525,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
     let n = tb.design.cols();
     let row: Vec<String> = tb.design.row(0).iter().map(|v| format!("{v:e}")).collect();
     let main = format!(
-        "#include <stdio.h>\n#include <time.h>\n#include \"ka.h\"\nint main(void) {{\n  double x[{n}] = {{{}}};\n  volatile double sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-9; sink += fdmlab_ka_predict(x); }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e300;\n}}\n",
+        "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"ka.h\"\nint main(void) {{\n  double x[{n}] = {{{}}};\n  volatile double sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-9; sink += fdmlab_ka_predict(x); }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e300;\n}}\n",
         row.join(",")
     );
     std::fs::write(dir.join("main.c"), main)?;

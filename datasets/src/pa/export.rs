@@ -369,8 +369,9 @@ fn c_header(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetErro
     let widest = m.weights.layers.iter().map(|l| l.outputs.max(l.inputs)).max().unwrap_or(1);
     let _ = writeln!(s, "\n/* y = act(x W + b), W row-major [inputs][outputs]. */");
     let _ = writeln!(s, "static void fdmlab_ka_dense(const float *x, int ni, const float *w, const float *b, int no, int act, float *y) {{");
-    let _ = writeln!(s, "  for (int o = 0; o < no; ++o) {{\n    float acc = 0.0f;\n    for (int i = 0; i < ni; ++i) acc += x[i] * w[i * no + o];\n    acc += b[o];");
-    let _ = writeln!(s, "    if (act == 1) acc = acc > 0.0f ? acc : 0.0f;\n    else if (act == 2) acc = 1.0f / (1.0f + expf(-acc));\n    y[o] = acc;\n  }}\n}}\n");
+    // Row-wise accumulation: contiguous weights, so compilers vectorise the inner loop.
+    let _ = writeln!(s, "  for (int o = 0; o < no; ++o) y[o] = b[o];\n  for (int i = 0; i < ni; ++i) {{\n    const float xi = x[i];\n    const float *wr = w + i * no;\n    for (int o = 0; o < no; ++o) y[o] += xi * wr[o];\n  }}");
+    let _ = writeln!(s, "  for (int o = 0; o < no; ++o) {{\n    if (act == 1) y[o] = y[o] > 0.0f ? y[o] : 0.0f;\n    else if (act == 2) y[o] = 1.0f / (1.0f + expf(-y[o]));\n  }}\n}}\n");
     let _ = writeln!(s, "/* K_A for one raw (unscaled, one-hot encoded) input vector. */");
     let _ = writeln!(s, "static double fdmlab_ka_predict(const double x[FDMLAB_KA_INPUTS]) {{");
     let _ = writeln!(s, "  float a[{widest}], b[{widest}];");
