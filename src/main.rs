@@ -43,7 +43,7 @@ enum Command {
     /// Hotend thermal identification, pole placement, simulation, grids, step-test G-code.
     #[command(subcommand)]
     Thermal(cmd::thermal::ThermalCommand),
-    /// Export identified models and controllers to firmware formats.
+    /// Export identified models, controllers and trained networks to firmware, slicer and daemon formats.
     #[command(subcommand)]
     Export(ExportCommand),
     /// Performance benchmarks (use a release build).
@@ -55,6 +55,10 @@ enum Command {
     /// Taguchi orthogonal arrays and the analysis of their results.
     #[command(subcommand)]
     Taguchi(cmd::hbot::TaguchiCommand),
+    /// Calibration G-code.
+    Gcode(cmd::pa::GcodeCommand),
+    /// Pressure advance K_A: twin grid, scores, regressor training and prediction.
+    Ka(cmd::pa::KaCommand),
     /// Print shell completions.
     Completions {
         /// Shell to generate for.
@@ -67,6 +71,8 @@ enum Command {
 enum ExportCommand {
     /// Hotend model/controller: marlin-mpc, marlin-pid, klipper-pid, klipper-mpc, reprap, c-header.
     Thermal(cmd::thermal::ExportArgs),
+    /// K_A model: marlin, klipper, reprap, orca, c-header, json.
+    Ka(cmd::pa::ExportKaArgs),
 }
 
 fn main() -> ExitCode {
@@ -85,6 +91,9 @@ fn main() -> ExitCode {
         Command::Taguchi(c) => cmd::hbot::taguchi(c, &ctx),
         Command::Thermal(c) => cmd::thermal::run(c, &ctx),
         Command::Export(ExportCommand::Thermal(a)) => cmd::thermal::export(a, &ctx),
+        Command::Gcode(c) => cmd::pa::gcode(c, &ctx),
+        Command::Ka(c) => cmd::pa::ka(c, &ctx),
+        Command::Export(ExportCommand::Ka(a)) => cmd::pa::export_cmd(cmd::pa::ExportCommand::Ka(a), &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

@@ -7,6 +7,7 @@ pub mod error;
 pub mod gcode;
 pub mod hbot;
 pub mod thermal;
+pub mod pa;
 pub mod thermal_log;
 
 pub use error::DatasetError;

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod hbot;
+pub mod pa;
 pub mod run;
 pub mod runs;
 pub mod thermal;

@@ -4,3 +4,4 @@ mod common;
 mod foundation;
 mod hbot;
 mod thermal;
+mod pa;

@@ -1,1 +1,5 @@
-//! burn networks (flex backend).
+//! burn networks (pure-Rust `flex` backend, autodiff for training).
+
+pub mod ka;
+
+pub use ka::{DenseWeights, KaNet, KaNetConfig, NetWeights, TrainConfig};

@@ -5,11 +5,12 @@ use crate::spec::SpecFile;
 use crate::stage::Stage;
 
 pub mod hbot;
+pub mod pressure_advance;
 pub mod thermal;
 pub mod thermal_grid;
 
 /// Every kind this build knows.
-pub const KINDS: &[&str] = &["thermal-ident", "thermal-grid", "hbot-taguchi"];
+pub const KINDS: &[&str] = &["thermal-ident", "thermal-grid", "hbot-taguchi", "pressure-advance"];
 
 /// The stages of `spec`, after validating its kind-specific sections.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
@@ -17,6 +18,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         "thermal-ident" => thermal::plan(spec),
         "hbot-taguchi" => hbot::plan(spec),
         "thermal-grid" => thermal_grid::plan(spec),
+        "pressure-advance" => pressure_advance::plan(spec),
         other => Err(spec.bad_value("experiment.kind", format!("unknown kind `{other}` (known: {})", KINDS.join(", ")))),
     }
 }

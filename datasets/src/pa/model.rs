@@ -1,0 +1,74 @@
+//! The stored K_A model: encoding of the input columns, scaling and network weights,
+//! plus its cross-validation summary. Serialised as JSON (the artifact of `ka train`).
+
+use super::table::{Encoding, LevelSupport};
+use crate::DatasetError;
+use fdmlab_models::regress::cv::ModelScore;
+use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Schema tag of the model artifact; bump when the layout changes.
+pub const MODEL_SCHEMA: &str = "fdmlab.ka-model/1";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KaModel {
+    pub schema: String,
+    pub encoding: Encoding,
+    pub settings: MlpSettings,
+    pub model: MlpModel,
+    /// Cross-validated scores of the network and baselines on the training data.
+    pub cv: Vec<ModelScore>,
+    pub folds: usize,
+    pub rows: usize,
+    /// Numeric ranges seen per categorical level (exports stay inside them).
+    pub support: Vec<LevelSupport>,
+}
+
+impl KaModel {
+    /// Parse a stored model and rebuild its network.
+    pub fn from_json(bytes: &[u8], file: &str) -> Result<KaModel, DatasetError> {
+        let m: KaModel = serde_json::from_slice(bytes).map_err(|e| DatasetError::parse(file, e.line(), "model", e.to_string()))?;
+        if m.schema != MODEL_SCHEMA {
+            return Err(DatasetError::parse(file, 1, "schema", format!("`{}` is not {MODEL_SCHEMA}", m.schema)));
+        }
+        if m.encoding.columns() != m.model.feature_names {
+            return Err(DatasetError::parse(file, 1, "encoding", "encoding and network columns disagree"));
+        }
+        let model = m.model.clone().load()?;
+        Ok(KaModel { model, ..m })
+    }
+
+    /// Serialise (deterministic: struct order, shortest round-trip floats).
+    pub fn to_json(&self) -> Result<Vec<u8>, DatasetError> {
+        serde_json::to_vec_pretty(self).map_err(|e| DatasetError::Refused(e.to_string()))
+    }
+
+    /// Predict K_A for one query `column → value`.
+    pub fn predict(&self, values: &BTreeMap<String, String>) -> Result<f64, DatasetError> {
+        let x = self.encoding.encode(values)?;
+        let p = self.model.predict(&x)?;
+        p.first().copied().ok_or_else(|| DatasetError::Refused("no prediction".into()))
+    }
+
+    /// Predict many encoded rows at once.
+    pub fn predict_rows(&self, x: &[f64]) -> Result<Vec<f64>, DatasetError> {
+        Ok(self.model.predict(x)?)
+    }
+}
+
+/// Parse `a=1,b=PLA` into a map (values may not contain `,` or `=`).
+pub fn parse_assignments(s: &str) -> Result<BTreeMap<String, String>, DatasetError> {
+    let mut out = BTreeMap::new();
+    for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (k, v) = part.split_once('=').ok_or_else(|| DatasetError::Refused(format!("`{part}` is not NAME=VALUE")))?;
+        let (k, v) = (k.trim(), v.trim());
+        if k.is_empty() || v.is_empty() {
+            return Err(DatasetError::Refused(format!("`{part}` is not NAME=VALUE")));
+        }
+        if out.insert(k.to_string(), v.to_string()).is_some() {
+            return Err(DatasetError::Refused(format!("`{k}` given twice")));
+        }
+    }
+    Ok(out)
+}

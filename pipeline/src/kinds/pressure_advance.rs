@@ -1,0 +1,535 @@
+//! Kind `pressure-advance`: calibration G-code → (scored prints) → K_A data set
+//! (the twin's grid, a CSV, or the ingested prints) → cross-validated regressor →
+//! firmware/daemon exports → report.
+
+use crate::error::{Error, Result};
+use crate::spec::{Header, SpecFile};
+use crate::stage::{Stage, StageOutput};
+use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Manifest, Pattern, Printer};
+use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
+use fdmlab_datasets::pa::model::{KaModel, MODEL_SCHEMA};
+use fdmlab_datasets::pa::{grid, scores, table};
+use fdmlab_models::extrusion::{Conditions, Extruder, GridConfig, LinePattern, Material};
+use fdmlab_models::nets::TrainConfig;
+use fdmlab_models::regress::cv::{cross_validate, CvReport};
+use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_reports::{num, LinePlot, Report, Table};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PaSpec {
+    pub experiment: Header,
+    pub printer: PrinterSpec,
+    pub calibration: CalibrationSpec,
+    #[serde(default)]
+    pub prints: Vec<PrintSpec>,
+    #[serde(default)]
+    pub dataset: DatasetSpec,
+    #[serde(default)]
+    pub model: ModelSpec,
+    #[serde(default)]
+    pub export: ExportSpec,
+}
+
+/// `[printer]`
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrinterSpec {
+    pub firmware: String,
+    #[serde(default = "d_bed")]
+    pub bed_mm: [f64; 2],
+    #[serde(default = "d_z")]
+    pub max_z_mm: f64,
+    #[serde(default = "d_nozzle")]
+    pub nozzle_mm: f64,
+    #[serde(default = "d_filament")]
+    pub filament_mm: f64,
+    #[serde(default = "d_extruder")]
+    pub extruder: String,
+    #[serde(default = "d_max_hotend")]
+    pub max_hotend_c: f64,
+    #[serde(default = "d_max_bed")]
+    pub max_bed_c: f64,
+}
+
+/// `k = { start, end, step }`
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KRange {
+    pub start: f64,
+    pub end: f64,
+    pub step: f64,
+}
+
+/// `[calibration]`: the print and its conditions.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSpec {
+    #[serde(default = "d_pattern")]
+    pub pattern: String,
+    pub k: KRange,
+    pub material: String,
+    pub hotend_c: f64,
+    pub bed_c: f64,
+    pub layer_mm: f64,
+    /// Nozzle diameter setting D_s (default: the printer's nozzle).
+    #[serde(default)]
+    pub nozzle_setting_mm: Option<f64>,
+    #[serde(default)]
+    pub line: Option<LinePattern>,
+    #[serde(default = "d_spacing")]
+    pub spacing_mm: f64,
+    #[serde(default = "d_band")]
+    pub band_mm: f64,
+}
+
+/// `[[prints]]`: a printed and scored calibration; unset fields come from `[calibration]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrintSpec {
+    pub scores: String,
+    #[serde(default)]
+    pub material: Option<String>,
+    #[serde(default)]
+    pub hotend_c: Option<f64>,
+    #[serde(default)]
+    pub bed_c: Option<f64>,
+    #[serde(default)]
+    pub layer_mm: Option<f64>,
+    #[serde(default)]
+    pub nozzle_setting_mm: Option<f64>,
+    #[serde(default)]
+    pub k: Option<KRange>,
+    #[serde(default = "d_scale")]
+    pub scale: f64,
+}
+
+/// `[dataset]`: where the K_A table comes from.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetSpec {
+    /// `twin` (the source's grid measured on the twin), `file`, or `prints`.
+    #[serde(default = "d_source")]
+    pub source: String,
+    #[serde(default)]
+    pub file: Option<String>,
+    #[serde(default = "d_target")]
+    pub target: String,
+    #[serde(default)]
+    pub features: Option<Vec<String>>,
+}
+
+impl Default for DatasetSpec {
+    fn default() -> Self {
+        DatasetSpec { source: d_source(), file: None, target: d_target(), features: None }
+    }
+}
+
+/// `[model]`
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    #[serde(default = "d_hidden")]
+    pub hidden: [usize; 3],
+    #[serde(default = "d_epochs")]
+    pub epochs: usize,
+    #[serde(default = "d_batch")]
+    pub batch: usize,
+    #[serde(default = "d_lr")]
+    pub learning_rate: f64,
+    #[serde(default = "d_folds")]
+    pub folds: usize,
+}
+
+impl Default for ModelSpec {
+    fn default() -> Self {
+        ModelSpec { hidden: d_hidden(), epochs: d_epochs(), batch: d_batch(), learning_rate: d_lr(), folds: d_folds() }
+    }
+}
+
+/// `[export]`
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportSpec {
+    #[serde(default = "d_formats")]
+    pub formats: Vec<String>,
+    /// Values of the inputs an export does not sweep.
+    #[serde(default)]
+    pub set: BTreeMap<String, toml::Value>,
+}
+
+impl Default for ExportSpec {
+    fn default() -> Self {
+        ExportSpec { formats: d_formats(), set: BTreeMap::new() }
+    }
+}
+
+fn d_bed() -> [f64; 2] {
+    [220.0, 220.0]
+}
+fn d_z() -> f64 {
+    250.0
+}
+fn d_nozzle() -> f64 {
+    0.4
+}
+fn d_filament() -> f64 {
+    1.75
+}
+fn d_extruder() -> String {
+    "bowden".into()
+}
+fn d_max_hotend() -> f64 {
+    260.0
+}
+fn d_max_bed() -> f64 {
+    110.0
+}
+fn d_pattern() -> String {
+    "lines".into()
+}
+fn d_spacing() -> f64 {
+    5.0
+}
+fn d_band() -> f64 {
+    2.0
+}
+fn d_scale() -> f64 {
+    10.0
+}
+fn d_source() -> String {
+    "twin".into()
+}
+fn d_target() -> String {
+    "k_a".into()
+}
+fn d_hidden() -> [usize; 3] {
+    [64, 64, 32]
+}
+fn d_epochs() -> usize {
+    500
+}
+fn d_batch() -> usize {
+    128
+}
+fn d_lr() -> f64 {
+    0.01
+}
+fn d_folds() -> usize {
+    5
+}
+fn d_formats() -> Vec<String> {
+    ["marlin", "klipper", "reprap", "orca", "c-header", "json"].iter().map(|s| s.to_string()).collect()
+}
+
+/// Features of the twin's grid and of ingested prints.
+const GRID_FEATURES: [&str; 5] = ["material", "extruder", "hotend_c", "nozzle_setting_mm", "layer_mm"];
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct PrintJob {
+    printer: Printer,
+    calibration: Calibration,
+    extruder: String,
+    nozzle_setting_mm: f64,
+}
+
+fn toml_text(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+impl PaSpec {
+    fn printer(&self, spec: &SpecFile) -> Result<Printer> {
+        let firmware = Firmware::parse(&self.printer.firmware).map_err(|e| spec.bad_value("printer.firmware", e.to_string()))?;
+        Ok(Printer {
+            firmware,
+            bed_mm: self.printer.bed_mm,
+            max_z_mm: self.printer.max_z_mm,
+            nozzle_mm: self.printer.nozzle_mm,
+            filament_mm: self.printer.filament_mm,
+            max_hotend_c: self.printer.max_hotend_c,
+            max_bed_c: self.printer.max_bed_c,
+        })
+    }
+
+    fn calibration(&self, spec: &SpecFile, p: Option<&PrintSpec>) -> Result<Calibration> {
+        let c = &self.calibration;
+        let pattern = Pattern::parse(&c.pattern).map_err(|e| spec.bad_value("calibration.pattern", e.to_string()))?;
+        let k = p.and_then(|p| p.k).unwrap_or(c.k);
+        let line = c.line.unwrap_or(if pattern == Pattern::Tower { LinePattern { slow_len_mm: 10.0, fast_len_mm: 30.0, ..LinePattern::default() } } else { LinePattern::default() });
+        Ok(Calibration {
+            pattern,
+            k_start: k.start,
+            k_end: k.end,
+            k_step: k.step,
+            material: p.and_then(|p| p.material.clone()).unwrap_or_else(|| c.material.clone()),
+            hotend_c: p.and_then(|p| p.hotend_c).unwrap_or(c.hotend_c),
+            bed_c: p.and_then(|p| p.bed_c).unwrap_or(c.bed_c),
+            layer_mm: p.and_then(|p| p.layer_mm).unwrap_or(c.layer_mm),
+            line_width_mm: None,
+            line,
+            spacing_mm: c.spacing_mm,
+            travel_mm_s: 120.0,
+            retract_mm: 0.8,
+            band_mm: c.band_mm,
+            title: format!("fdmlab {}", self.experiment.name),
+        })
+    }
+
+    /// Range checks and a dry run of every G-code writer (so refusals are located).
+    fn check(&self, spec: &SpecFile) -> Result<Vec<PrintJob>> {
+        Extruder::parse(&self.printer.extruder).map_err(|e| spec.bad_value("printer.extruder", e.to_string()))?;
+        let mut jobs = Vec::new();
+        let printer = self.printer(spec)?;
+        let base = self.calibration(spec, None)?;
+        calibration::write(&printer, &base).map_err(|e| spec.bad_value("calibration", e.to_string()))?;
+        let ds = self.calibration.nozzle_setting_mm.unwrap_or(self.printer.nozzle_mm);
+        jobs.push(PrintJob { printer: printer.clone(), calibration: base, extruder: self.printer.extruder.clone(), nozzle_setting_mm: ds });
+        for (i, p) in self.prints.iter().enumerate() {
+            let c = self.calibration(spec, Some(p))?;
+            calibration::write(&printer, &c).map_err(|e| spec.bad_value(&format!("prints.{i}"), e.to_string()))?;
+            if !(p.scale > 0.0 && p.scale <= 1000.0) {
+                return Err(spec.bad_value("prints.scale", "must be within (0, 1000]"));
+            }
+            jobs.push(PrintJob { printer: printer.clone(), calibration: c, extruder: self.printer.extruder.clone(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
+        }
+        let m = &self.model;
+        let rules: [(&str, bool, &str); 6] = [
+            ("dataset.source", ["twin", "file", "prints"].contains(&self.dataset.source.as_str()), "must be twin, file or prints"),
+            ("dataset.file", (self.dataset.source == "file") == self.dataset.file.is_some(), "give `file` exactly when source = \"file\""),
+            ("dataset.source", self.dataset.source != "prints" || self.prints.len() >= 4, "`prints` needs at least 4 [[prints]] to train on"),
+            ("model.hidden", m.hidden.iter().all(|&w| (1..=1024).contains(&w)), "widths must be within 1–1024"),
+            ("model.folds", (2..=20).contains(&m.folds), "must be within 2–20"),
+            ("model.epochs", (1..=100_000).contains(&m.epochs) && m.batch > 0 && m.learning_rate > 0.0 && m.learning_rate < 10.0, "epochs 1–100000, batch > 0, learning_rate in (0, 10)"),
+        ];
+        for (key, ok, why) in rules {
+            if !ok {
+                return Err(spec.bad_value(key, why));
+            }
+        }
+        for f in &self.export.formats {
+            ExportFormat::parse(f).map_err(|e| spec.bad_value("export.formats", e.to_string()))?;
+        }
+        Ok(jobs)
+    }
+}
+
+/// Validate the spec and expand it into stages.
+pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
+    let s: PaSpec = spec.parse()?;
+    let jobs = s.check(spec)?;
+    let mut stages = Vec::new();
+
+    // 1. G-code of every print, with manifests.
+    stages.push(Stage::new("gcode", 1, serde_json::to_value(&jobs).map_err(|e| spec.bad_value("calibration", e.to_string()))?, |input| {
+        let jobs: Vec<PrintJob> = input.params()?;
+        let mut out = StageOutput::default();
+        for (i, j) in jobs.iter().enumerate() {
+            let g = calibration::write(&j.printer, &j.calibration)?;
+            let name = if i == 0 { "calibration".to_string() } else { format!("print-{i}") };
+            out = out.add(&format!("{name}.gcode"), "text/x-gcode", g.text.into_bytes()).add_json(&format!("{name}.json"), &g.manifest)?;
+        }
+        Ok(out.metric("prints", jobs.len() as f64))
+    }));
+
+    // 2. Scores of the printed calibrations.
+    let score_files: Vec<PathBuf> = s.prints.iter().enumerate().map(|(i, p)| spec.input_file(&format!("prints.{i}.scores"), &p.scores).or_else(|_| spec.input_file("prints.scores", &p.scores))).collect::<Result<_>>()?;
+    if !s.prints.is_empty() {
+        let files = score_files.clone();
+        let meta: Vec<(String, f64, String, f64)> = jobs.iter().skip(1).zip(&s.prints).map(|(j, p)| (j.extruder.clone(), j.nozzle_setting_mm, p.scores.clone(), p.scale)).collect();
+        stages.push(
+            Stage::new("scores", 1, serde_json::json!({ "prints": meta }), move |input| {
+                let meta: Vec<(String, f64, String, f64)> = serde_json::from_value(input.params["prints"].clone()).map_err(|e| Error::Stage { stage: "scores".into(), message: e.to_string() })?;
+                let mut results = Vec::new();
+                let mut csv = String::from("material,extruder,hotend_c,nozzle_setting_mm,layer_mm,k_a,k_a_sd,kendall_w\n");
+                for (i, ((extruder, ds, name, scale), path)) in meta.iter().zip(&files).enumerate() {
+                    let m: Manifest = input.json("gcode", &format!("print-{}.json", i + 1))?;
+                    let ps = scores::ingest(&input.file(path)?, name, &m, *scale)?;
+                    csv += &format!("{},{},{},{},{},{},{},{}\n", m.material, extruder, m.hotend_c, ds, m.layer_mm, ps.best.k, ps.best.k_sd, ps.kendall_w.map(|w| w.to_string()).unwrap_or_default());
+                    results.push(ps);
+                }
+                StageOutput::default().add("prints.csv", "text/csv", csv.into_bytes()).add_json("scores.json", &results)
+            })
+            .after(&["gcode"])
+            .reading(score_files.clone()),
+        );
+    }
+
+    // 3. The K_A data set.
+    let (dataset, target, features) = match s.dataset.source.as_str() {
+        "twin" => {
+            stages.push(Stage::new("dataset", 1, serde_json::json!({ "grid": GridConfig { seed: s.experiment.seed, ..GridConfig::default() } }), |input| {
+                let cfg: GridConfig = serde_json::from_value(input.params["grid"].clone()).map_err(|e| Error::Stage { stage: "dataset".into(), message: e.to_string() })?;
+                let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
+                let max = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
+                Ok(StageOutput::default()
+                    .add("data.csv", "text/csv", grid::grid_csv(&rows).into_bytes())
+                    .add("truth.csv", "text/csv", grid::truth_csv(&rows).into_bytes())
+                    .metric("rows", rows.len() as f64)
+                    .metric("max_measurement_error", max))
+            }));
+            ("dataset", "k_a".to_string(), Some(GRID_FEATURES.iter().map(|s| s.to_string()).collect::<Vec<_>>()))
+        }
+        "file" => {
+            let rel = s.dataset.file.clone().unwrap_or_default();
+            let path = spec.input_file("dataset.file", &rel)?;
+            let p2 = path.clone();
+            stages.push(
+                Stage::new("dataset", 1, serde_json::json!({ "file": rel }), move |input| Ok(StageOutput::default().add("data.csv", "text/csv", input.file(&p2)?)))
+                    .reading(vec![path]),
+            );
+            ("dataset", s.dataset.target.clone(), s.dataset.features.clone())
+        }
+        _ => ("scores", "k_a".to_string(), Some(GRID_FEATURES.iter().map(|s| s.to_string()).collect())),
+    };
+    let data_name = if dataset == "scores" { "prints.csv" } else { "data.csv" };
+
+    // 4. Train: CV against baselines, then the model on all rows.
+    let settings = MlpSettings {
+        hidden: s.model.hidden,
+        train: TrainConfig { epochs: s.model.epochs, batch_size: s.model.batch, learning_rate: s.model.learning_rate, seed: s.experiment.seed },
+    };
+    let train_params = serde_json::json!({ "settings": settings, "folds": s.model.folds, "target": target, "features": features, "data": [dataset, data_name] });
+    stages.push(
+        Stage::new("train", 1, train_params, move |input| {
+            let settings: MlpSettings = serde_json::from_value(input.params["settings"].clone()).map_err(|e| Error::Stage { stage: "train".into(), message: e.to_string() })?;
+            let folds = input.params["folds"].as_u64().unwrap_or(5) as usize;
+            let target = input.params["target"].as_str().unwrap_or("k_a").to_string();
+            let features: Option<Vec<String>> = serde_json::from_value(input.params["features"].clone()).unwrap_or(None);
+            let src = input.params["data"][0].as_str().unwrap_or("dataset").to_string();
+            let name = input.params["data"][1].as_str().unwrap_or("data.csv").to_string();
+            let bytes = input.output(&src, &name)?;
+            let t = table::load(&bytes, &name, &target, features.as_deref())?;
+            let cv = cross_validate(&t.design, folds.min(t.design.rows()), settings.train.seed, &settings)?;
+            let all: Vec<usize> = (0..t.design.rows()).collect();
+            let model = MlpModel::fit(&t.design, &all, &settings)?;
+            let km = KaModel { schema: MODEL_SCHEMA.into(), encoding: t.encoding.clone(), settings, model, cv: cv.models.clone(), folds, rows: t.design.rows(), support: t.support() };
+            let mut out = StageOutput::default().add("model.json", "application/json", km.to_json()?).add_json("cv.json", &cv)?;
+            for m in &cv.models {
+                out = out.metric(&format!("{}_mae", m.name), m.mae).metric(&format!("{}_max_error", m.name), m.max_error);
+            }
+            Ok(out)
+        })
+        .after(&[dataset]),
+    );
+
+    // 5. Exports.
+    let fixed: BTreeMap<String, String> = s.export.set.iter().map(|(k, v)| (k.clone(), toml_text(v))).collect();
+    stages.push(
+        Stage::new("export", 1, serde_json::json!({ "formats": s.export.formats, "set": fixed }), |input| {
+            let km = KaModel::from_json(&input.output("train", "model.json")?, "model.json")?;
+            let formats: Vec<String> = serde_json::from_value(input.params["formats"].clone()).unwrap_or_default();
+            let fixed: BTreeMap<String, String> = serde_json::from_value(input.params["set"].clone()).unwrap_or_default();
+            let label = format!("model {}", &crate::store::Hash::of(&input.output("train", "model.json")?).0[..12]);
+            let mut out = StageOutput::default();
+            for f in formats {
+                let fmt = ExportFormat::parse(&f)?;
+                let opts = ExportOptions { fixed: fixed.clone(), label: label.clone(), ..ExportOptions::default() };
+                let text = export::export(&km, fmt, &opts)?;
+                out = out.add(&format!("ka-{f}.{}", fmt.extension()), "text/plain", text.into_bytes());
+            }
+            Ok(out)
+        })
+        .after(&["train"]),
+    );
+
+    // 6. Report.
+    let has_prints = !s.prints.is_empty();
+    let twin = s.dataset.source == "twin";
+    let mut deps = vec!["train", "gcode"];
+    if has_prints {
+        deps.push("scores");
+    }
+    if dataset == "dataset" {
+        deps.push("dataset");
+    }
+    let title = format!("{} — pressure advance (K_A)", s.experiment.name);
+    stages.push(
+        Stage::new("report", 1, serde_json::json!({ "title": title, "prints": has_prints, "twin": twin }), move |input| {
+            let km = KaModel::from_json(&input.output("train", "model.json")?, "model.json")?;
+            let cv: CvReport = input.json("train", "cv.json")?;
+            let prints: Vec<scores::PrintScores> = if has_prints { input.json("scores", "scores.json")? } else { vec![] };
+            let title = input.params["title"].as_str().unwrap_or("pressure advance").to_string();
+            let data = if twin { Some(input.output("dataset", "data.csv")?) } else { None };
+            let report = report(&title, &km, &cv, &prints, data.as_deref())?;
+            StageOutput::default().add_report(&report)
+        })
+        .after(&deps),
+    );
+    Ok(stages)
+}
+
+fn q(pairs: &[(&str, String)]) -> BTreeMap<String, String> {
+    pairs.iter().map(|(k, v)| (k.to_string(), v.clone())).collect()
+}
+
+/// The comparison report: K_A vs temperature per material and layer, Bowden vs
+/// direct, model vs baselines, and each scored print's curve.
+fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScores], twin_csv: Option<&[u8]>) -> Result<Report> {
+    let mut r = Report::new(title);
+    r.paragraph("K_A regressor after Zimenko, Afanasev & Kolesnikov (2022): three dense layers (ReLU, ReLU, sigmoid) and a linear output, min–max scaling fitted on each training split, trained with Adam on burn's flex backend.");
+    r.heading("Model vs baselines");
+    let mut t = Table::new(format!("{}-fold cross-validation on {} rows (out-of-fold errors, s)", cv.folds, cv.rows), ["model", "MAE", "max error"]);
+    for m in &cv.models {
+        t.push([m.name.clone(), num(m.mae, 4), num(m.max_error, 4)]);
+    }
+    r.table(t);
+    let mlp = cv.models.iter().find(|m| m.name == "mlp");
+    if let Some(mlp) = mlp {
+        let beaten: Vec<&str> = cv.models.iter().filter(|m| m.name != "mlp" && m.mae <= mlp.mae).map(|m| m.name.as_str()).collect();
+        r.paragraph(format!(
+            "Network: MAE {} s, max deviation {} s (source: within 0.015). {}",
+            num(mlp.mae, 4),
+            num(mlp.max_error, 4),
+            if beaten.is_empty() { "It beats every baseline's MAE.".to_string() } else { format!("It does NOT beat: {}.", beaten.join(", ")) }
+        ));
+    }
+    if twin_csv.is_some() {
+        r.heading("K_A vs print temperature");
+        for ext in ["bowden", "direct"] {
+            for mat in ["ABS", "PLA", "PETG"] {
+                let props = Material::parse(mat).map(|m| m.props()).map_err(Error::Model)?;
+                let mut plot = LinePlot::new(format!("{mat}, {ext}, D_s 0.4 mm"), "print temperature (°C)", "K_A (s)");
+                for h in [0.1, 0.2, 0.25, 0.3, 0.4] {
+                    let mut pts = Vec::new();
+                    let mut t = props.hotend_min_c;
+                    while t <= props.hotend_max_c + 1e-9 {
+                        let k = km.predict(&q(&[("material", mat.into()), ("extruder", ext.into()), ("hotend_c", format!("{t}")), ("nozzle_setting_mm", "0.4".into()), ("layer_mm", format!("{h}"))]))?;
+                        pts.push((t, k));
+                        t += 2.5;
+                    }
+                    plot = plot.line(format!("h = {h} mm"), pts);
+                }
+                r.plot(plot);
+            }
+        }
+        r.heading("Bowden vs direct drive (PLA, 215 °C, D_s 0.4 mm)");
+        let mut t = Table::new("K_A (s): source (Zimenko 2022, table 2), twin truth, network", ["h (mm)", "Bowden source", "Bowden twin", "Bowden net", "direct source", "direct twin", "direct net"]);
+        for (h, bs, ds) in [(0.3, 0.59, 0.045), (0.2, 0.63, 0.060), (0.1, 0.90, 0.090)] {
+            let truth = |e: Extruder| Conditions { material: Material::Pla, extruder: e, hotend_c: 215.0, layer_mm: h, nozzle_setting_mm: 0.4 }.true_k_s();
+            let net = |e: &str| km.predict(&q(&[("material", "PLA".into()), ("extruder", e.into()), ("hotend_c", "215".into()), ("nozzle_setting_mm", "0.4".into()), ("layer_mm", format!("{h}"))]));
+            t.push([format!("{h}"), num(bs, 3), num(truth(Extruder::Bowden), 3), num(net("bowden")?, 3), num(ds, 3), num(truth(Extruder::Direct), 3), num(net("direct")?, 3)]);
+        }
+        r.table(t);
+    }
+    if !prints.is_empty() {
+        r.heading("Scored prints");
+        let mut t = Table::new("Best K_A per print (local quadratic around the best mean score)", ["print", "best K_A", "± sd", "raters", "Kendall's W"]);
+        for (i, p) in prints.iter().enumerate() {
+            t.push([format!("{}", i + 1), num(p.best.k, 4), num(p.best.k_sd, 4), format!("{}", p.raters.len()), p.kendall_w.map(|w| num(w, 3)).unwrap_or_else(|| "n/a".into())]);
+        }
+        r.table(t);
+        for (i, p) in prints.iter().enumerate() {
+            let means = p.table.line_means();
+            let pts: Vec<(f64, f64)> = p.table.k.iter().zip(&means).filter_map(|(k, m)| m.map(|m| (*k, m))).collect();
+            let top = pts.iter().map(|p| p.1).fold(0.0, f64::max);
+            r.plot(LinePlot::new(format!("print {}: mean score, chosen K_A = {}", i + 1, num(p.best.k, 4)), "K_A (s)", "mean score").points("mean score", pts).line("chosen K_A", vec![(p.best.k, 0.0), (p.best.k, top)]));
+        }
+    }
+    Ok(r)
+}

@@ -1,0 +1,549 @@
+//! Pressure advance: `fdmlab gcode pa`, `fdmlab ka grid|scores|train|predict`,
+//! `fdmlab export ka`, `fdmlab bench pa`.
+
+use super::Ctx;
+use anyhow::Context as _;
+use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
+use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
+use fdmlab_datasets::pa::model::{parse_assignments, KaModel, MODEL_SCHEMA};
+use fdmlab_datasets::pa::{grid, scores, table};
+use fdmlab_models::extrusion::{GridConfig, LinePattern};
+use fdmlab_models::nets::TrainConfig;
+use fdmlab_models::regress::cv::cross_validate;
+use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_pipeline::runs;
+use fdmlab_pipeline::stage::{Artifact, InputRef};
+use fdmlab_pipeline::{Error, Hash, Store};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// `fdmlab gcode …`
+#[derive(clap::Subcommand)]
+pub enum GcodeCommand {
+    /// Pressure-advance calibration print (lines or tower); writes FILE and FILE.json (manifest).
+    Pa(GcodePaArgs),
+}
+
+/// Arguments of `fdmlab gcode pa`.
+#[derive(clap::Args, Debug)]
+pub struct GcodePaArgs {
+    #[arg(long, default_value = "marlin")]
+    pub firmware: String,
+    #[arg(long, default_value = "lines")]
+    pub pattern: String,
+    #[arg(long, default_value_t = 0.0)]
+    pub k_start: f64,
+    #[arg(long, default_value_t = 1.0)]
+    pub k_end: f64,
+    #[arg(long, default_value_t = 0.05)]
+    pub k_step: f64,
+    /// Bed size X,Y in mm.
+    #[arg(long, default_value = "220,220")]
+    pub bed: String,
+    #[arg(long, default_value_t = 250.0)]
+    pub max_z: f64,
+    #[arg(long, default_value_t = 0.4)]
+    pub nozzle: f64,
+    #[arg(long, default_value_t = 1.75)]
+    pub filament: f64,
+    #[arg(long, default_value_t = 0.2)]
+    pub layer: f64,
+    /// Line width (default 1.2 × nozzle).
+    #[arg(long)]
+    pub width: Option<f64>,
+    #[arg(long, default_value = "PLA")]
+    pub material: String,
+    #[arg(long, default_value_t = 215.0)]
+    pub hotend: f64,
+    #[arg(long, default_value_t = 60.0)]
+    pub bed_temp: f64,
+    /// Printer hardware limits, °C.
+    #[arg(long, default_value_t = 260.0)]
+    pub max_hotend: f64,
+    #[arg(long, default_value_t = 110.0)]
+    pub max_bed: f64,
+    #[arg(long, default_value_t = 20.0)]
+    pub slow_speed: f64,
+    #[arg(long, default_value_t = 80.0)]
+    pub fast_speed: f64,
+    #[arg(long, default_value_t = 1000.0)]
+    pub accel: f64,
+    /// Slow segment length (default 30 mm for lines, 10 mm for the tower).
+    #[arg(long)]
+    pub slow_len: Option<f64>,
+    /// Fast segment length (default 40 mm for lines, 30 mm for the tower).
+    #[arg(long)]
+    pub fast_len: Option<f64>,
+    #[arg(long, default_value_t = 5.0)]
+    pub spacing: f64,
+    /// Tower band height, mm.
+    #[arg(long, default_value_t = 2.0)]
+    pub band: f64,
+    #[arg(long, default_value = "fdmlab pressure-advance calibration")]
+    pub title: String,
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+impl GcodePaArgs {
+    /// The printer and calibration these arguments describe.
+    pub fn to_request(&self) -> Result<(Printer, Calibration), Error> {
+        let firmware = Firmware::parse(&self.firmware)?;
+        let pattern = Pattern::parse(&self.pattern)?;
+        let bed = parse_pair(&self.bed).ok_or_else(|| Error::bad_input(format!("--bed `{}` is not X,Y in mm", self.bed)))?;
+        let tower = pattern == Pattern::Tower;
+        let line = LinePattern {
+            slow_mm_s: self.slow_speed,
+            fast_mm_s: self.fast_speed,
+            accel_mm_s2: self.accel,
+            slow_len_mm: self.slow_len.unwrap_or(if tower { 10.0 } else { 30.0 }),
+            fast_len_mm: self.fast_len.unwrap_or(if tower { 30.0 } else { 40.0 }),
+        };
+        let printer = Printer { firmware, bed_mm: bed, max_z_mm: self.max_z, nozzle_mm: self.nozzle, filament_mm: self.filament, max_hotend_c: self.max_hotend, max_bed_c: self.max_bed };
+        let cal = Calibration {
+            pattern,
+            k_start: self.k_start,
+            k_end: self.k_end,
+            k_step: self.k_step,
+            material: self.material.clone(),
+            hotend_c: self.hotend,
+            bed_c: self.bed_temp,
+            layer_mm: self.layer,
+            line_width_mm: self.width,
+            line,
+            spacing_mm: self.spacing,
+            travel_mm_s: 120.0,
+            retract_mm: 0.8,
+            band_mm: self.band,
+            title: self.title.clone(),
+        };
+        Ok((printer, cal))
+    }
+}
+
+fn parse_pair(s: &str) -> Option<[f64; 2]> {
+    let (a, b) = s.split_once(',')?;
+    Some([a.trim().parse().ok()?, b.trim().parse().ok()?])
+}
+
+/// Atomic write next to the target (temp file in the same folder, then rename).
+fn write_file(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    fdmlab_pipeline::store::write_atomic_via(dir, path, bytes)?;
+    Ok(())
+}
+
+fn manifest_path(gcode: &Path) -> PathBuf {
+    let mut s = gcode.as_os_str().to_owned();
+    s.push(".json");
+    PathBuf::from(s)
+}
+
+/// `fdmlab gcode …`
+pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
+    match cmd {
+        GcodeCommand::Pa(a) => {
+            let (printer, cal) = a.to_request()?;
+            let g = calibration::write(&printer, &cal)?;
+            let manifest = serde_json::to_vec_pretty(&g.manifest)?;
+            write_file(&a.output, g.text.as_bytes())?;
+            let mpath = manifest_path(&a.output);
+            write_file(&mpath, &manifest)?;
+            let value = serde_json::json!({
+                "gcode": a.output.display().to_string(),
+                "manifest": mpath.display().to_string(),
+                "hash": Hash::of(g.text.as_bytes()).0,
+                "regions": g.manifest.regions.len(),
+                "k": g.manifest.regions.iter().map(|r| r.k).collect::<Vec<_>>(),
+                "e_per_mm": g.manifest.e_per_mm,
+            });
+            ctx.emit(&value, || format!("wrote {} ({} K values, {} lines of G-code) and {}\n", a.output.display(), g.manifest.regions.len(), g.text.lines().count(), mpath.display()));
+            Ok(())
+        }
+    }
+}
+
+/// `fdmlab ka …`
+#[derive(clap::Subcommand)]
+pub enum KaCommand {
+    /// Measure the source's grid on the extrusion twin and write it as CSV.
+    Grid {
+        #[arg(short, long)]
+        output: PathBuf,
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// Also write the twin's true K and the measurement uncertainty here.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+    },
+    /// Ingest a scores CSV for a calibration print (best K_A, Kendall's W).
+    Scores {
+        /// The print's manifest (`FILE.gcode.json` from `gcode pa`).
+        #[arg(long)]
+        manifest: PathBuf,
+        #[arg(long)]
+        scores: PathBuf,
+        /// Top of the score scale.
+        #[arg(long, default_value_t = 10.0)]
+        scale: f64,
+    },
+    /// Score a calibration print on the extrusion twin (simulated raters) and write a scores CSV.
+    SimulateScores {
+        #[arg(long)]
+        manifest: PathBuf,
+        /// The twin plant's true K (s).
+        #[arg(long)]
+        k_true: f64,
+        #[arg(long, default_value_t = 3)]
+        raters: usize,
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Cross-validate the network against baselines and store the model trained on all rows.
+    Train(TrainArgs),
+    /// Predict K_A with a stored model.
+    Predict {
+        /// Run id (or prefix, `latest`) of `ka train` / a pressure-advance run, or a model blob hash.
+        #[arg(long)]
+        model: String,
+        /// Inputs `column=value,…` (original columns; categoricals by level name).
+        #[arg(long)]
+        set: String,
+    },
+}
+
+/// Arguments of `fdmlab ka train`.
+#[derive(clap::Args, Debug)]
+pub struct TrainArgs {
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long)]
+    pub target: String,
+    /// Feature columns (default: every other column).
+    #[arg(long, value_delimiter = ',')]
+    pub features: Option<Vec<String>>,
+    #[arg(long, default_value_t = 5)]
+    pub folds: usize,
+    #[arg(long, default_value_t = 500)]
+    pub epochs: usize,
+    /// Hidden widths of the three dense layers.
+    #[arg(long, default_value = "64,64,32")]
+    pub hidden: String,
+    #[arg(long, default_value_t = 128)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 0.01)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+}
+
+/// Hidden widths `a,b,c`.
+pub fn parse_hidden(s: &str) -> Result<[usize; 3], Error> {
+    let v: Vec<usize> = s.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|_| Error::bad_input(format!("--hidden `{s}`: expected three widths a,b,c")))?;
+    match v.as_slice() {
+        [a, b, c] if *a > 0 && *b > 0 && *c > 0 => Ok([*a, *b, *c]),
+        _ => Err(Error::bad_input(format!("--hidden `{s}`: expected three positive widths a,b,c"))),
+    }
+}
+
+/// Everything `ka train` produces, shared with the spec kind and the benchmark.
+pub struct Trained {
+    pub model: KaModel,
+    pub cv: fdmlab_models::regress::cv::CvReport,
+}
+
+/// Cross-validate and fit on all rows.
+pub fn train_table(t: &table::FeatureTable, settings: &MlpSettings, folds: usize) -> Result<Trained, Error> {
+    let cv = cross_validate(&t.design, folds, settings.train.seed, settings)?;
+    let all: Vec<usize> = (0..t.design.rows()).collect();
+    let model = MlpModel::fit(&t.design, &all, settings)?;
+    let model = KaModel {
+        schema: MODEL_SCHEMA.into(),
+        encoding: t.encoding.clone(),
+        settings: settings.clone(),
+        model,
+        cv: cv.models.clone(),
+        folds,
+        rows: t.design.rows(),
+        support: t.support(),
+    };
+    Ok(Trained { model, cv })
+}
+
+fn cv_json(folds: usize, rows: usize, models: &[fdmlab_models::regress::cv::ModelScore]) -> serde_json::Value {
+    serde_json::json!({
+        "folds": folds,
+        "rows": rows,
+        "models": models.iter().map(|m| serde_json::json!({"name": m.name, "mae": m.mae, "max_error": m.max_error})).collect::<Vec<_>>(),
+    })
+}
+
+/// Resolve a model: a run (its last `model.json` output) or a blob hash.
+pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
+    let hash = match runs::find(store, id) {
+        Ok(run) => run
+            .stages
+            .iter()
+            .rev()
+            .flat_map(|s| s.outputs.iter())
+            .find(|o| o.name == "model.json")
+            .map(|o| o.hash.clone())
+            .ok_or_else(|| Error::bad_input(format!("run {} has no model.json", run.id)))?,
+        Err(_) => store.resolve(id)?,
+    };
+    let bytes = store.get(&hash)?;
+    let model = KaModel::from_json(&bytes, &format!("blob {}", hash.0))?;
+    Ok((model, hash))
+}
+
+fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: e.to_string() }.into())
+}
+
+/// `fdmlab ka …`
+pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
+    match cmd {
+        KaCommand::Grid { output, seed, truth } => {
+            let cfg = GridConfig { seed, ..GridConfig::default() };
+            let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
+            write_file(&output, grid::grid_csv(&rows).as_bytes())?;
+            if let Some(t) = &truth {
+                write_file(t, grid::truth_csv(&rows).as_bytes())?;
+            }
+            let max_dev = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
+            let value = serde_json::json!({"rows": rows.len(), "seed": seed, "output": output.display().to_string(), "max_measurement_error": max_dev});
+            ctx.emit(&value, || format!("wrote {} grid rows (seed {seed}) to {}; largest |K_A − K_true| = {max_dev:.4} s\n", rows.len(), output.display()));
+            Ok(())
+        }
+        KaCommand::Scores { manifest, scores: file, scale } => {
+            let mb = read(&manifest)?;
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
+            let s = scores::ingest(&read(&file)?, &file.display().to_string(), &m, scale)?;
+            let value = serde_json::json!({"best_k": s.best.k, "best_k_sd": s.best.k_sd, "best_line": s.best.best_line + 1, "window": s.best.window, "raters": s.raters, "rows": s.rows, "kendall_w": s.kendall_w, "kendall_lines": s.kendall_lines});
+            ctx.emit(&value, || {
+                format!(
+                    "best K_A = {:.4} ± {:.4} (line {} of {}, {} raters, {} rows); Kendall's W = {}\n",
+                    s.best.k,
+                    s.best.k_sd,
+                    s.best.best_line + 1,
+                    m.regions.len(),
+                    s.raters.len(),
+                    s.rows,
+                    s.kendall_w.map(|w| format!("{w:.3} over {} lines", s.kendall_lines)).unwrap_or_else(|| "n/a".into())
+                )
+            });
+            Ok(())
+        }
+        KaCommand::SimulateScores { manifest, k_true, raters, seed, output } => {
+            let mb = read(&manifest)?;
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
+            if !(k_true > 0.0 && k_true <= 10.0) || raters == 0 || raters > 50 {
+                return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
+            }
+            let mut rng = fdmlab_models::rng::seeded(seed, 0);
+            let panel = fdmlab_models::extrusion::Rater::panel(raters, 0.3, 0.5, &mut rng);
+            let k: Vec<f64> = m.regions.iter().map(|r| r.k).collect();
+            let t = fdmlab_models::extrusion::scoring::simulate_print(&m.line, k_true, &k, &panel, &mut rng)?;
+            let names: Vec<String> = (1..=raters).map(|i| format!("rater{i}")).collect();
+            write_file(&output, scores::to_csv(&t, &names, &m).as_bytes())?;
+            ctx.emit(&serde_json::json!({"output": output.display().to_string(), "lines": k.len(), "raters": raters}), || format!("wrote {} ({} lines × {raters} raters)\n", output.display(), k.len()));
+            Ok(())
+        }
+        KaCommand::Train(a) => {
+            let t0 = Instant::now();
+            let bytes = read(&a.data)?;
+            let t = table::load(&bytes, &a.data.display().to_string(), &a.target, a.features.as_deref())?;
+            let settings = MlpSettings { hidden: parse_hidden(&a.hidden)?, train: TrainConfig { epochs: a.epochs, batch_size: a.batch, learning_rate: a.lr, seed: a.seed } };
+            settings.train.check()?;
+            if a.folds < 2 || a.folds > t.design.rows() {
+                return Err(Error::bad_input(format!("--folds {} must be within 2 and the {} rows", a.folds, t.design.rows())).into());
+            }
+            let trained = train_table(&t, &settings, a.folds)?;
+            let model_json = trained.model.to_json()?;
+            let store = ctx.store()?;
+            let data_hash = store.put(&bytes)?;
+            let params = serde_json::json!({"data": a.data.display().to_string(), "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
+            let mut metrics = BTreeMap::new();
+            for m in &trained.cv.models {
+                metrics.insert(format!("{}_mae", m.name), m.mae);
+                metrics.insert(format!("{}_max_error", m.name), m.max_error);
+            }
+            let cv_bytes = serde_json::to_vec_pretty(&trained.cv)?;
+            let record = runs::record_command(
+                &store,
+                "ka train",
+                params,
+                vec![InputRef { name: format!("file:{}", a.data.display()), hash: data_hash }],
+                vec![
+                    Artifact { name: "model.json".into(), media_type: "application/json".into(), bytes: model_json.clone() },
+                    Artifact { name: "cv.json".into(), media_type: "application/json".into(), bytes: cv_bytes },
+                ],
+                metrics,
+                t0.elapsed().as_secs_f64(),
+            )?;
+            let mut value = cv_json(a.folds, t.design.rows(), &trained.cv.models);
+            value["run"] = serde_json::json!(record.id);
+            value["model"] = serde_json::json!(Hash::of(&model_json).0);
+            ctx.emit(&value, || {
+                let mut s = format!("{}-fold CV on {} rows ({} features):\n", a.folds, t.design.rows(), t.design.cols());
+                for m in &trained.cv.models {
+                    s += &format!("  {:<8} MAE {:.4}  max {:.4}\n", m.name, m.mae, m.max_error);
+                }
+                s + &format!("model {} (run {})\n", &Hash::of(&model_json).0[..12], record.id)
+            });
+            Ok(())
+        }
+        KaCommand::Predict { model, set } => {
+            let store = ctx.store()?;
+            let (m, hash) = load_model(&store, &model)?;
+            let q = parse_assignments(&set)?;
+            let k = m.predict(&q)?;
+            ctx.emit(&serde_json::json!({"k": k, "model": hash.0}), || format!("K_A = {k:.4}\n"));
+            Ok(())
+        }
+    }
+}
+
+/// `fdmlab export …`
+#[derive(clap::Subcommand)]
+pub enum ExportCommand {
+    /// Export a K_A model for firmware, slicers or daemons.
+    Ka(ExportKaArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ExportKaArgs {
+    #[arg(long)]
+    pub model: String,
+    /// marlin | klipper | reprap | orca | c-header | json
+    #[arg(long)]
+    pub format: String,
+    /// Values of the inputs the table does not sweep, `column=value,…`.
+    #[arg(long, default_value = "")]
+    pub set: String,
+    #[arg(long, default_value = "material")]
+    pub material_column: String,
+    #[arg(long, default_value = "hotend_c")]
+    pub temp_column: String,
+    #[arg(long, default_value_t = 5.0)]
+    pub temp_step: f64,
+    /// Klipper: material of the `[extruder] pressure_advance` default.
+    #[arg(long)]
+    pub default_material: Option<String>,
+    /// Output file (default: stdout).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+}
+
+/// `fdmlab export …`
+pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
+    let ExportCommand::Ka(a) = cmd;
+    let store = ctx.store()?;
+    let (m, hash) = load_model(&store, &a.model)?;
+    let format = ExportFormat::parse(&a.format)?;
+    let opts = ExportOptions {
+        material_column: a.material_column.clone(),
+        temp_column: a.temp_column.clone(),
+        temp_step_c: a.temp_step,
+        fixed: parse_assignments(&a.set)?,
+        default_material: a.default_material.clone(),
+        label: format!("model {}", &hash.0[..12]),
+        ..ExportOptions::default()
+    };
+    let text = export::export(&m, format, &opts)?;
+    match &a.output {
+        Some(p) => {
+            write_file(p, text.as_bytes())?;
+            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len()}), || format!("wrote {}\n", p.display()));
+        }
+        None => print!("{text}"),
+    }
+    Ok(())
+}
+
+/// `fdmlab bench pa`: training time on the twin's grid, pattern generation, C inference.
+pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result<()> {
+    let t = Instant::now();
+    let rows = fdmlab_models::extrusion::grid::generate(&GridConfig::default())?;
+    let grid_s = t.elapsed().as_secs_f64();
+    let csv = grid::grid_csv(&rows);
+    let features: Vec<String> = ["material", "extruder", "hotend_c", "nozzle_setting_mm", "layer_mm"].iter().map(|s| s.to_string()).collect();
+    let tb = table::load(csv.as_bytes(), "grid.csv", "k_a", Some(&features))?;
+    let settings = MlpSettings { train: TrainConfig { epochs, ..TrainConfig::default() }, ..MlpSettings::default() };
+    let all: Vec<usize> = (0..tb.design.rows()).collect();
+    let t = Instant::now();
+    let model = MlpModel::fit(&tb.design, &all, &settings)?;
+    let train_s = t.elapsed().as_secs_f64();
+    // 40-line pattern.
+    let cal = Calibration { k_start: 0.0, k_end: 0.78, k_step: 0.02, spacing_mm: 4.5, ..Calibration::default() };
+    let reps = 200;
+    let t = Instant::now();
+    let mut bytes = 0;
+    for _ in 0..reps {
+        bytes += calibration::write(&Printer::default(), &cal)?.text.len();
+    }
+    let pattern_s = t.elapsed().as_secs_f64() / reps as f64;
+    let lines = calibration::write(&Printer::default(), &cal)?.manifest.regions.len();
+    // Rust-side inference per prediction (the C header's timing is measured by its test harness).
+    let x: Vec<f64> = (0..tb.design.rows()).flat_map(|i| tb.design.row(i).to_vec()).collect();
+    let t = Instant::now();
+    let p = model.predict(&x)?;
+    let burn_batch_us = t.elapsed().as_secs_f64() * 1e6 / p.len() as f64;
+    let c_us = c_inference_us(&model, &tb)?;
+    let torch_s = match torch {
+        Some(script) => torch_time(&script, &csv, epochs).ok(),
+        None => None,
+    };
+    let value = serde_json::json!({
+        "grid_rows": rows.len(), "grid_s": grid_s,
+        "train_epochs": epochs, "train_s": train_s, "torch_train_s": torch_s,
+        "torch_over_burn": torch_s.map(|s| s / train_s),
+        "pattern_lines": lines, "pattern_ms": pattern_s * 1e3, "pattern_bytes": bytes / reps,
+        "burn_batch_predict_us": burn_batch_us, "c_predict_us": c_us,
+    });
+    ctx.emit(&value, || {
+        format!(
+            "twin grid: {} rows in {:.2} s\ntraining ({} rows × {} epochs): burn {:.2} s{}\n{}-line pattern: {:.3} ms\ninference: burn batch {:.3} µs/row, C header {}\n",
+            rows.len(), grid_s, tb.design.rows(), epochs, train_s,
+            torch_s.map(|s| format!(", PyTorch {s:.2} s ({:.2}× burn's time)", s / train_s)).unwrap_or_else(|| ", PyTorch not measured (pass --torch benches/pa_torch.py with torch installed)".into()),
+            lines, pattern_s * 1e3, burn_batch_us,
+            c_us.map(|u| format!("{u:.3} µs/prediction")).unwrap_or_else(|| "not measured (no cc)".into())
+        )
+    });
+    Ok(())
+}
+
+/// Compile the C header with `cc -O2` and time 1e6 predictions.
+fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<Option<f64>> {
+    let km = KaModel { schema: MODEL_SCHEMA.into(), encoding: tb.encoding.clone(), settings: MlpSettings::default(), model: model.clone(), cv: vec![], folds: 0, rows: 0, support: vec![] };
+    let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
+    let dir = super::bench::tempdir()?;
+    std::fs::write(dir.join("ka.h"), header)?;
+    let n = tb.design.cols();
+    let row: Vec<String> = tb.design.row(0).iter().map(|v| format!("{v:e}")).collect();
+    let main = format!(
+        "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"ka.h\"\nint main(void) {{\n  double x[{n}] = {{{}}};\n  volatile double sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-9; sink += fdmlab_ka_predict(x); }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e300;\n}}\n",
+        row.join(",")
+    );
+    std::fs::write(dir.join("main.c"), main)?;
+    let exe = dir.join("ka-bench");
+    let ok = std::process::Command::new("cc").args(["-std=c99", "-O2", "-o"]).arg(&exe).arg(dir.join("main.c")).arg("-lm").status().map(|s| s.success()).unwrap_or(false);
+    let out = if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(out)
+}
+
+/// Run the PyTorch script on the same grid and read its training time.
+fn torch_time(script: &Path, csv: &str, epochs: usize) -> anyhow::Result<f64> {
+    let dir = super::bench::tempdir()?;
+    let path = dir.join("grid.csv");
+    std::fs::write(&path, csv)?;
+    let python = std::env::var("FDMLAB_PYTHON").unwrap_or_else(|_| "python3".into());
+    let out = std::process::Command::new(python).arg(script).arg(&path).arg("--epochs").arg(epochs.to_string()).output().context("running the PyTorch script")?;
+    let _ = std::fs::remove_dir_all(&dir);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).with_context(|| String::from_utf8_lossy(&out.stderr).to_string())?;
+    v["seconds"].as_f64().context("no `seconds` in the PyTorch output")
+}
