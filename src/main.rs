@@ -56,8 +56,10 @@ enum Command {
     #[command(subcommand)]
     Taguchi(cmd::hbot::TaguchiCommand),
     /// Calibration G-code.
+    #[command(subcommand)]
     Gcode(cmd::pa::GcodeCommand),
     /// Pressure advance K_A: twin grid, scores, regressor training and prediction.
+    #[command(subcommand)]
     Ka(cmd::pa::KaCommand),
     /// Print shell completions.
     Completions {
