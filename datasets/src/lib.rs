@@ -8,6 +8,5 @@ pub mod gcode;
 pub mod hbot;
 pub mod thermal;
 pub mod pa;
-pub mod thermal_log;
 
 pub use error::DatasetError;

@@ -186,3 +186,20 @@ fn bad_specs_are_refused_with_location_and_nothing_written() {
         }
     }
 }
+
+#[test]
+fn a_measured_log_is_identified_instead_of_the_twin() {
+    let sb = Sandbox::new();
+    let spec = copy_spec(&sb, SPEC);
+    let twin = &sb.json(&["run", spec.to_str().expect("utf8")])[0];
+    let csv_hash = twin["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "log.csv").expect("log.csv")["hash"].as_str().expect("hash").to_string();
+    sb.write("measured.csv", &sb.ok(&["cat", &csv_hash]));
+    let text = std::fs::read_to_string(&spec).expect("spec").replace("name = \"thermal-first-order\"", "name = \"measured\"").replace("[identify]", "[data]\nlog = \"measured.csv\"\n\n[identify]");
+    let measured = sb.write("measured.toml", &text);
+    let run = &sb.json(&["run", measured.to_str().expect("utf8")])[0];
+    let names: Vec<&str> = run["stages"].as_array().expect("stages").iter().map(|s| s["name"].as_str().expect("name")).collect();
+    assert_eq!(names, ["ingest", "identify", "report"]);
+    // Same samples as the twin's run, so the same fit to the last digit.
+    assert_eq!(run["stages"][1]["metrics"], twin["stages"][1]["metrics"]);
+    assert_eq!(run["stages"][0]["inputs"][0]["name"], "file:measured.csv");
+}

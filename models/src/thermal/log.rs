@@ -32,3 +32,15 @@ impl StepLog {
         self.time_s[1] - self.time_s[0]
     }
 }
+
+impl From<&super::data::Experiment> for StepLog {
+    /// The uniformly sampled step log of an experiment read from any log format.
+    fn from(e: &super::data::Experiment) -> Self {
+        StepLog {
+            time_s: (0..e.temperature_c.len()).map(|i| i as f64 * e.dt_s).collect(),
+            heater_duty: e.heater_duty.clone(),
+            fan_duty: e.fan_duty.clone(),
+            temperature_c: e.temperature_c.clone(),
+        }
+    }
+}

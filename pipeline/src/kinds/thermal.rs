@@ -61,7 +61,8 @@ impl Default for IdentifySpec {
     }
 }
 
-/// `[data]`: a measured log (CSV `time_s,heater_duty,fan_duty,temperature_c`).
+/// `[data]`: a measured log in any format `thermal identify` reads (log CSV,
+/// Marlin serial log, Klipper klippy.log; see docs/thermal.md).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DataSpec {
@@ -132,7 +133,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let label = d.log.clone();
             Stage::new("ingest", 1, serde_json::json!({ "log": d.log }), move |input| {
                 let bytes = input.file(&path)?;
-                let log = fdmlab_datasets::thermal_log::read_step_log(&String::from_utf8_lossy(&bytes), &label)?;
+                let text = String::from_utf8_lossy(&bytes);
+                let (experiment, _notes) = fdmlab_datasets::thermal::read_log(&text, &label, &fdmlab_datasets::thermal::ReadOptions::default())?;
+                let log = StepLog::from(&experiment);
                 StageOutput::default().add_json("log.json", &log)
             })
             .reading(vec![spec.input_file("data.log", &d.log)?])
