@@ -114,11 +114,11 @@ pub fn find(store: &Store, id: &str) -> Result<RunRecord> {
     if id == "latest" {
         return runs.into_iter().last().ok_or_else(|| Error::bad_input("the store has no run yet"));
     }
-    let matches: Vec<RunRecord> = runs.into_iter().filter(|r| r.id.starts_with(id)).collect();
-    match matches.len() {
-        1 => Ok(matches.into_iter().next().expect("one match")),
-        0 => Err(Error::bad_input(format!("no run `{id}` (see `fdmlab runs list`)"))),
-        n => Err(Error::bad_input(format!("`{id}` matches {n} runs; give more of the id"))),
+    let mut matches: Vec<RunRecord> = runs.into_iter().filter(|r| r.id.starts_with(id)).collect();
+    match (matches.pop(), matches.len()) {
+        (Some(one), 0) => Ok(one),
+        (None, _) => Err(Error::bad_input(format!("no run `{id}` (see `fdmlab runs list`)"))),
+        (Some(_), n) => Err(Error::bad_input(format!("`{id}` matches {} runs; give more of the id", n + 1))),
     }
 }
 
