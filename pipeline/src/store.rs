@@ -226,6 +226,14 @@ impl Store {
     }
 }
 
+/// Atomic write of a user-facing output file (G-code, CSV, export): the temp
+/// file is staged in the target's own folder, so the rename never crosses file
+/// systems and a failure never leaves a partial file.
+pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    write_atomic_via(dir, path, bytes)
+}
+
 /// Atomic write of `bytes` to `path`, staging the temp file in `tmp_dir`
 /// (which must be on the same file system).
 pub fn write_atomic_via(tmp_dir: &Path, path: &Path, bytes: &[u8]) -> Result<()> {

@@ -2,7 +2,8 @@
 //! (orthogonal arrays and their analysis) and `fdmlab bench hbot`.
 
 use super::Ctx;
-use fdmlab_datasets::hbot::{gcode_steps, steps, taguchi_csv, trajectory, write_atomic};
+use fdmlab_datasets::hbot::{gcode_steps, steps, taguchi_csv, trajectory};
+use fdmlab_pipeline::store::write_file_atomic;
 use fdmlab_models::doe::{analyze, OrthogonalArray, Sense};
 use fdmlab_models::hbot::ident;
 use fdmlab_models::hbot::study::{self, StudyConfig};
@@ -210,7 +211,7 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
         Some(path) => {
             let parquet = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
             let (bytes, media) = if parquet { (trajectory::to_parquet(&tr)?, "application/vnd.apache.parquet") } else { (trajectory::to_csv(&tr).into_bytes(), "text/csv") };
-            write_atomic(path, &bytes)?;
+            write_file_atomic(path, &bytes)?;
             let name = path.file_name().map_or("trajectory".into(), |n| n.to_string_lossy().into_owned());
             let params_json = serde_json::json!({ "params": params, "axis": if matches!(a.axis, AxisArg::X) { "x" } else { "y" }, "distance_mm": a.distance_mm, "duration_s": a.duration_s, "settle_s": a.settle_s, "sample_dt_s": a.sample_dt_s });
             let metrics = BTreeMap::from([("y_at_stop_mm".to_string(), tr.y_m[stop] * 1e3), ("x_at_stop_mm".to_string(), tr.x_m[stop] * 1e3)]);
@@ -240,7 +241,7 @@ fn steps_cmd(a: StepsArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let summary = serde_json::json!({ "moves": stream.blocks.len(), "mix_changes": stream.mix_changes, "net_steps": { "M1": totals[0], "M2": totals[1], "Z": totals[2], "E0": totals[3], "E1": totals[4], "E2": totals[5] }, "out": a.out.as_ref().map(|p| p.display().to_string()) });
     match &a.out {
         Some(path) => {
-            write_atomic(path, body.as_bytes())?;
+            write_file_atomic(path, body.as_bytes())?;
             ctx.emit(&summary, || format!("wrote {} ({} moves, {} M11 changes)", path.display(), stream.blocks.len(), stream.mix_changes));
         }
         None if ctx.json => ctx.emit(&summary, String::new),
@@ -267,7 +268,7 @@ fn array(a: ArrayArgs, ctx: &Ctx) -> anyhow::Result<()> {
     }
     let rows = oa.select(&columns)?;
     if let Some(path) = &a.csv {
-        write_atomic(path, taguchi_csv::template(&names, &rows, "s").as_bytes())?;
+        write_file_atomic(path, taguchi_csv::template(&names, &rows, "s").as_bytes())?;
     }
     let value = serde_json::json!({ "array": oa.name, "runs": rows.len(), "factors": names, "columns": columns, "orthogonal": oa.is_orthogonal(), "rows": rows });
     ctx.emit(&value, || {

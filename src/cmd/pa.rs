@@ -1,6 +1,7 @@
 //! Pressure advance: `fdmlab gcode pa`, `fdmlab ka grid|scores|train|predict`,
 //! `fdmlab export ka`, `fdmlab bench pa`.
 
+use fdmlab_pipeline::store::write_file_atomic;
 use super::Ctx;
 use anyhow::Context as _;
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
@@ -127,12 +128,6 @@ fn parse_pair(s: &str) -> Option<[f64; 2]> {
     Some([a.trim().parse().ok()?, b.trim().parse().ok()?])
 }
 
-/// Atomic write next to the target (temp file in the same folder, then rename).
-fn write_file(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    fdmlab_pipeline::store::write_atomic_via(dir, path, bytes)?;
-    Ok(())
-}
 
 fn manifest_path(gcode: &Path) -> PathBuf {
     let mut s = gcode.as_os_str().to_owned();
@@ -147,9 +142,9 @@ pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let (printer, cal) = a.to_request()?;
             let g = calibration::write(&printer, &cal)?;
             let manifest = serde_json::to_vec_pretty(&g.manifest)?;
-            write_file(&a.output, g.text.as_bytes())?;
+            write_file_atomic(&a.output, g.text.as_bytes())?;
             let mpath = manifest_path(&a.output);
-            write_file(&mpath, &manifest)?;
+            write_file_atomic(&mpath, &manifest)?;
             let value = serde_json::json!({
                 "gcode": a.output.display().to_string(),
                 "manifest": mpath.display().to_string(),
@@ -309,9 +304,9 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         KaCommand::Grid { output, seed, truth } => {
             let cfg = GridConfig { seed, ..GridConfig::default() };
             let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
-            write_file(&output, grid::grid_csv(&rows).as_bytes())?;
+            write_file_atomic(&output, grid::grid_csv(&rows).as_bytes())?;
             if let Some(t) = &truth {
-                write_file(t, grid::truth_csv(&rows).as_bytes())?;
+                write_file_atomic(t, grid::truth_csv(&rows).as_bytes())?;
             }
             let max_dev = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
             let value = serde_json::json!({"rows": rows.len(), "seed": seed, "output": output.display().to_string(), "max_measurement_error": max_dev});
@@ -348,7 +343,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let k: Vec<f64> = m.regions.iter().map(|r| r.k).collect();
             let t = fdmlab_models::extrusion::scoring::simulate_print(&m.line, k_true, &k, &panel, &mut rng)?;
             let names: Vec<String> = (1..=raters).map(|i| format!("rater{i}")).collect();
-            write_file(&output, scores::to_csv(&t, &names, &m).as_bytes())?;
+            write_file_atomic(&output, scores::to_csv(&t, &names, &m).as_bytes())?;
             ctx.emit(&serde_json::json!({"output": output.display().to_string(), "lines": k.len(), "raters": raters}), || format!("wrote {} ({} lines × {raters} raters)\n", output.display(), k.len()));
             Ok(())
         }
@@ -456,7 +451,7 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
     let text = export::export(&m, format, &opts)?;
     match &a.output {
         Some(p) => {
-            write_file(p, text.as_bytes())?;
+            write_file_atomic(p, text.as_bytes())?;
             ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len()}), || format!("wrote {}\n", p.display()));
         }
         None => print!("{text}"),

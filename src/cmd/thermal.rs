@@ -1,6 +1,7 @@
 //! `fdmlab thermal …` (identify, place, simulate, grid, gcode), `fdmlab export
 //! thermal` and `fdmlab bench thermal`.
 
+use fdmlab_pipeline::store::write_file_atomic;
 use super::Ctx;
 use anyhow::Context;
 use fdmlab_datasets::thermal::{self as tlog, export, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
@@ -411,13 +412,6 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Write bytes atomically (temp file + rename).
-fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(|e| Error::Io { path: dir.display().to_string(), source: e })?;
-    fdmlab_pipeline::store::write_atomic_via(dir, path, bytes)?;
-    Ok(())
-}
 
 fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let twin = Twin::default();
@@ -425,7 +419,7 @@ fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
     for runs in [twin::identification_grid(), twin::verification_grid()] {
         for e in twin.grid(&runs, &StepTest::default(), a.seed)? {
             let path = a.out_dir.join(format!("{}.csv", e.name));
-            write_atomic(&path, tlog::csv::write(&e).as_bytes())?;
+            write_file_atomic(&path, tlog::csv::write(&e).as_bytes())?;
             written.push(path.display().to_string());
         }
     }
@@ -452,7 +446,7 @@ fn gcode(a: GcodeArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let text = step_gcode::write(&g, &runs)?;
     match &a.out {
         Some(p) => {
-            write_atomic(p, text.as_bytes())?;
+            write_file_atomic(p, text.as_bytes())?;
             ctx.emit(&json!({"file": p, "lines": text.lines().count()}), || format!("wrote {}", p.display()));
         }
         None => print!("{text}"),
@@ -494,7 +488,7 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
     };
     match &a.out {
         Some(p) => {
-            write_atomic(p, text.as_bytes())?;
+            write_file_atomic(p, text.as_bytes())?;
             ctx.emit(&json!({"file": p, "format": a.format}), || format!("wrote {}", p.display()));
         }
         None => {

@@ -131,6 +131,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         Some(d) => {
             let path = spec.input_file("data.log", &d.log)?;
             let label = d.log.clone();
+            let declared = path.clone();
             Stage::new("ingest", 1, serde_json::json!({ "log": d.log }), move |input| {
                 let bytes = input.file(&path)?;
                 let text = String::from_utf8_lossy(&bytes);
@@ -138,7 +139,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 let log = StepLog::from(&experiment);
                 StageOutput::default().add_json("log.json", &log)
             })
-            .reading(vec![spec.input_file("data.log", &d.log)?])
+            .reading(vec![declared])
         }
         None => simulate_stage(sim_params),
     };
