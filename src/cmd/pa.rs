@@ -10,7 +10,6 @@ use fdmlab_datasets::pa::model::{parse_assignments, KaModel, MODEL_SCHEMA};
 use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{GridConfig, LinePattern};
 use fdmlab_models::nets::TrainConfig;
-use fdmlab_models::regress::cv::cross_validate;
 use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
@@ -244,30 +243,6 @@ pub fn parse_hidden(s: &str) -> Result<[usize; 3], Error> {
     }
 }
 
-/// Everything `ka train` produces, shared with the spec kind and the benchmark.
-pub struct Trained {
-    pub model: KaModel,
-    pub cv: fdmlab_models::regress::cv::CvReport,
-}
-
-/// Cross-validate and fit on all rows.
-pub fn train_table(t: &table::FeatureTable, settings: &MlpSettings, folds: usize) -> Result<Trained, Error> {
-    let cv = cross_validate(&t.design, folds, settings.train.seed, settings)?;
-    let all: Vec<usize> = (0..t.design.rows()).collect();
-    let model = MlpModel::fit(&t.design, &all, settings)?;
-    let model = KaModel {
-        schema: MODEL_SCHEMA.into(),
-        encoding: t.encoding.clone(),
-        settings: settings.clone(),
-        model,
-        cv: cv.models.clone(),
-        folds,
-        rows: t.design.rows(),
-        support: t.support(),
-    };
-    Ok(Trained { model, cv })
-}
-
 fn cv_json(folds: usize, rows: usize, models: &[fdmlab_models::regress::cv::ModelScore]) -> serde_json::Value {
     serde_json::json!({
         "folds": folds,
@@ -356,17 +331,17 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             if a.folds < 2 || a.folds > t.design.rows() {
                 return Err(Error::bad_input(format!("--folds {} must be within 2 and the {} rows", a.folds, t.design.rows())).into());
             }
-            let trained = train_table(&t, &settings, a.folds)?;
-            let model_json = trained.model.to_json()?;
+            let (model, cv) = KaModel::train(&t, &settings, a.folds)?;
+            let model_json = model.to_json()?;
             let store = ctx.store()?;
             let data_hash = store.put(&bytes)?;
             let params = serde_json::json!({"data": a.data.display().to_string(), "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
             let mut metrics = BTreeMap::new();
-            for m in &trained.cv.models {
+            for m in &cv.models {
                 metrics.insert(format!("{}_mae", m.name), m.mae);
                 metrics.insert(format!("{}_max_error", m.name), m.max_error);
             }
-            let cv_bytes = serde_json::to_vec_pretty(&trained.cv)?;
+            let cv_bytes = serde_json::to_vec_pretty(&cv)?;
             let record = runs::record_command(
                 &store,
                 "ka train",
@@ -374,17 +349,18 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
                 vec![InputRef { name: format!("file:{}", a.data.display()), hash: data_hash }],
                 vec![
                     Artifact { name: "model.json".into(), media_type: "application/json".into(), bytes: model_json.clone() },
+                    Artifact { name: "model.bpk".into(), media_type: "application/octet-stream".into(), bytes: model.model.to_burnpack()? },
                     Artifact { name: "cv.json".into(), media_type: "application/json".into(), bytes: cv_bytes },
                 ],
                 metrics,
                 t0.elapsed().as_secs_f64(),
             )?;
-            let mut value = cv_json(a.folds, t.design.rows(), &trained.cv.models);
+            let mut value = cv_json(a.folds, t.design.rows(), &cv.models);
             value["run"] = serde_json::json!(record.id);
             value["model"] = serde_json::json!(Hash::of(&model_json).0);
             ctx.emit(&value, || {
                 let mut s = format!("{}-fold CV on {} rows ({} features):\n", a.folds, t.design.rows(), t.design.cols());
-                for m in &trained.cv.models {
+                for m in &cv.models {
                     s += &format!("  {:<8} MAE {:.4}  max {:.4}\n", m.name, m.mae, m.max_error);
                 }
                 s + &format!("model {} (run {})\n", &Hash::of(&model_json).0[..12], record.id)
@@ -511,7 +487,7 @@ pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result
     Ok(())
 }
 
-/// Compile the C header with `cc -O2` and time 1e6 predictions.
+/// Compile the C header with `cc -O3` (what the header asks for) and time 1e6 predictions.
 fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<Option<f64>> {
     let km = KaModel { schema: MODEL_SCHEMA.into(), encoding: tb.encoding.clone(), settings: MlpSettings::default(), model: model.clone(), cv: vec![], folds: 0, rows: 0, support: vec![] };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
@@ -525,7 +501,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
     );
     std::fs::write(dir.join("main.c"), main)?;
     let exe = dir.join("ka-bench");
-    let ok = std::process::Command::new("cc").args(["-std=c99", "-O2", "-o"]).arg(&exe).arg(dir.join("main.c")).arg("-lm").status().map(|s| s.success()).unwrap_or(false);
+    let ok = std::process::Command::new("cc").args(["-std=c99", "-O3", "-o"]).arg(&exe).arg(dir.join("main.c")).arg("-lm").status().map(|s| s.success()).unwrap_or(false);
     let out = if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
     let _ = std::fs::remove_dir_all(&dir);
     Ok(out)

@@ -76,9 +76,23 @@ fn train_predict_export_on_a_small_table() {
         let out = sb.ok(&["export", "ka", "--model", &run, "--format", f, "--set", "layer_mm=0.2"]);
         assert!(!out.is_empty(), "{f}");
     }
-    // Same data, same seed: the same model artifact (byte-identical).
+    // The run also stores the network as Burnpack; it loads into burn with the
+    // weights of the JSON artifact.
+    let rec = sb.json(&["runs", "show", &run]);
+    let outputs = rec["stages"][0]["outputs"].as_array().expect("outputs");
+    let hash_of = |name: &str| outputs.iter().find(|o| o["name"] == name).and_then(|o| o["hash"].as_str()).expect(name).to_string();
+    let bpk = sb.run(&["cat", &hash_of("model.bpk")]).stdout;
+    let json: serde_json::Value = serde_json::from_slice(&sb.run(&["cat", &hash_of("model.json")]).stdout).expect("model json");
+    let weights: fdmlab_models::nets::NetWeights = serde_json::from_value(json["model"]["weights"].clone()).expect("weights");
+    let widths = |i: usize| weights.layers[i].outputs;
+    let cfg = fdmlab_models::nets::KaNetConfig::new(weights.layers[0].inputs).with_hidden1(widths(0)).with_hidden2(widths(1)).with_hidden3(widths(2));
+    let net = fdmlab_models::nets::KaNet::from_burnpack(&bpk, &cfg, &burn::prelude::Device::flex()).expect("load burnpack");
+    assert_eq!(net.weights().expect("weights"), weights);
+    // Same data, same seed: the same model artifacts (byte-identical).
     let again = sb.json(&["ka", "train", "--data", "t.csv", "--target", "k", "--epochs", "40", "--folds", "3"]);
     assert_eq!(again["model"], v["model"]);
+    let again_rec = sb.json(&["runs", "show", again["run"].as_str().expect("run")]);
+    assert_eq!(again_rec["stages"][0]["outputs"], rec["stages"][0]["outputs"]);
 }
 
 #[test]

@@ -1,9 +1,9 @@
 //! The stored K_A model: encoding of the input columns, scaling and network weights,
 //! plus its cross-validation summary. Serialised as JSON (the artifact of `ka train`).
 
-use super::table::{Encoding, LevelSupport};
+use super::table::{Encoding, FeatureTable, LevelSupport};
 use crate::DatasetError;
-use fdmlab_models::regress::cv::ModelScore;
+use fdmlab_models::regress::cv::{cross_validate, CvReport, ModelScore};
 use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -26,6 +26,25 @@ pub struct KaModel {
 }
 
 impl KaModel {
+    /// `folds`-fold cross-validation against the baselines, then the network
+    /// fitted on all rows (what `ka train` and the `pressure-advance` kind do).
+    pub fn train(t: &FeatureTable, settings: &MlpSettings, folds: usize) -> Result<(KaModel, CvReport), DatasetError> {
+        let cv = cross_validate(&t.design, folds, settings.train.seed, settings)?;
+        let all: Vec<usize> = (0..t.design.rows()).collect();
+        let model = MlpModel::fit(&t.design, &all, settings)?;
+        let km = KaModel {
+            schema: MODEL_SCHEMA.into(),
+            encoding: t.encoding.clone(),
+            settings: settings.clone(),
+            model,
+            cv: cv.models.clone(),
+            folds,
+            rows: t.design.rows(),
+            support: t.support(),
+        };
+        Ok((km, cv))
+    }
+
     /// Parse a stored model and rebuild its network.
     pub fn from_json(bytes: &[u8], file: &str) -> Result<KaModel, DatasetError> {
         let m: KaModel = serde_json::from_slice(bytes).map_err(|e| DatasetError::parse(file, e.line(), "model", e.to_string()))?;

@@ -8,6 +8,7 @@ use burn::module::{Param, ParamId};
 use burn::nn::Linear;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
+use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::activation::{relu, sigmoid};
 use rand::seq::SliceRandom;
 use rand::Rng as _;
@@ -139,6 +140,22 @@ impl KaNet {
         Ok(NetWeights { layers: vec![weights_of(&self.l1)?, weights_of(&self.l2)?, weights_of(&self.l3)?, weights_of(&self.out)?] })
     }
 
+    /// The network in burn's native Burnpack format (`.bpk`), for burn programs
+    /// that load it with `BurnpackStore` (tensor paths `l1.weight`, …, `out.bias`).
+    pub fn to_burnpack(&self) -> Result<Vec<u8>, ModelError> {
+        let mut store = BurnpackStore::from_bytes(None);
+        self.save_into(&mut store).map_err(|e| ModelError::Numerical(format!("burnpack: {e}")))?;
+        Ok(store.get_bytes().map_err(|e| ModelError::Numerical(format!("burnpack: {e}")))?.to_vec())
+    }
+
+    /// Load a network of the given widths from Burnpack bytes.
+    pub fn from_burnpack(bytes: &[u8], config: &KaNetConfig, device: &Device) -> Result<KaNet, ModelError> {
+        let mut net = config.init_seeded(device, 0)?;
+        let mut store = BurnpackStore::from_bytes(Some(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec())));
+        net.load_from(&mut store).map_err(|e| ModelError::Numerical(format!("burnpack: {e}")))?;
+        Ok(net)
+    }
+
     /// Forward pass on a batch `[rows, inputs]` → `[rows, 1]`.
     pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
         let h = relu(self.l1.forward(x));
@@ -245,6 +262,20 @@ mod tests {
         let w = a.unwrap_or(NetWeights { layers: vec![] });
         let back = KaNet::from_weights(&w, &dev).and_then(|n| n.weights());
         assert_eq!(back.ok(), Some(w));
+    }
+
+    #[test]
+    fn burnpack_round_trip_is_exact_and_deterministic() {
+        let cfg = KaNetConfig::new(4).with_hidden1(8).with_hidden2(6).with_hidden3(5);
+        let dev = Device::flex();
+        let net = cfg.init_seeded(&dev, 11).expect("net");
+        let bytes = net.to_burnpack().expect("save");
+        // The same weights give the same bytes (artifacts are content-addressed).
+        assert_eq!(bytes, cfg.init_seeded(&dev, 11).and_then(|n| n.to_burnpack()).expect("save again"));
+        let back = KaNet::from_burnpack(&bytes, &cfg, &dev).expect("load");
+        assert_eq!(back.weights().expect("w"), net.weights().expect("w"));
+        // A network of other widths refuses the file instead of loading garbage.
+        assert!(KaNet::from_burnpack(&bytes, &KaNetConfig::new(4), &dev).is_err());
     }
 
     #[test]

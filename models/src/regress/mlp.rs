@@ -67,6 +67,11 @@ impl MlpModel {
         Ok(self)
     }
 
+    /// The network in burn's Burnpack format (scaling stays in the JSON artifact).
+    pub fn to_burnpack(&self) -> Result<Vec<u8>, ModelError> {
+        KaNet::from_weights(&self.weights, &Device::flex())?.to_burnpack()
+    }
+
     /// Predict many feature rows (row-major, `feature_names.len()` columns) in one batch.
     pub fn predict(&self, x: &[f64]) -> Result<Vec<f64>, ModelError> {
         let net = self.net.as_ref().ok_or_else(|| ModelError::Numerical("model not loaded".into()))?;

@@ -182,25 +182,19 @@ pub fn armax_from(data: &[Series], n: usize, e: &[Vec<f64>]) -> Result<Polynomia
         let mut rhs = DVector::zeros(rows);
         let mut r0 = 0;
         for (s, es) in data.iter().zip(&e) {
+            // Filtering commutes with the lag (zero initial conditions), so
+            // filter each signal once and lag the result.
             let len = s.y.len();
-            let lagged = |x: &[f64], i: usize, sign: f64| -> Vec<f64> { (0..len).map(|k| if k > i { sign * x[k - 1 - i] } else { 0.0 }).collect() };
-            let mut col = 0;
-            let mut put = |v: Vec<f64>, psi: &mut DMatrix<f64>| {
-                for (k, x) in all_pole(&v, &current.c).into_iter().enumerate() {
-                    psi[(r0 + k, col)] = x;
-                }
-                col += 1;
-            };
-            for i in 0..n {
-                put(lagged(&s.y, i, -1.0), &mut psi);
-            }
-            for uj in &s.u {
+            let neg_y: Vec<f64> = s.y.iter().map(|v| -v).collect();
+            let signals = std::iter::once(&neg_y).chain(s.u.iter()).chain(std::iter::once(es));
+            for (g, x) in signals.enumerate() {
+                let filtered = all_pole(x, &current.c);
                 for i in 0..n {
-                    put(lagged(uj, i, 1.0), &mut psi);
+                    let col = g * n + i;
+                    for k in i + 1..len {
+                        psi[(r0 + k, col)] = filtered[k - 1 - i];
+                    }
                 }
-            }
-            for i in 0..n {
-                put(lagged(es, i, 1.0), &mut psi);
             }
             for (k, x) in es.iter().enumerate() {
                 rhs[r0 + k] = *x;

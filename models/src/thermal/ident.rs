@@ -215,8 +215,7 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
                 .iter()
                 .map(|&n| {
                     prepared
-                        .a_c(n, method)
-                        .and_then(|(a, c)| subspace::fit_b(data, &a, &c, dt))
+                        .identify(data, n, method, dt)
                         .map(|ss| ThermalModel::from_discrete(family, n, inputs.clone(), &ss, n + n * m, names.to_vec()))
                         .map_err(|e| fail(family, n, e))
                 })
@@ -278,16 +277,37 @@ mod tests {
             // Output-error fits of order ≥ 2 (TF, subspace, grey box) must come
             // within 1 point of that. Equation-error fits (ARX, ARMAX's one-step
             // criterion) are biased by the noise in their regressors (Ljung 1999,
-            // §8.3) and FOPDT misses the sensor lag: > 94 %. First-order subspace
-            // truncations are only required to simulate sensibly (> 50 %).
+            // §8.3) and FOPDT misses the sensor lag: > 94 %. First-order
+            // truncations of the second-order plant lose the lag too: TF-1 fits
+            // 95.3 % and subspace-1 92.4 % (its state-sequence candidate; shift
+            // invariance alone gave ≈ 60 %), so 94 % and 90 %.
             let floor = match (m.model.family, m.model.order) {
                 (Family::Arx | Family::Armax | Family::Fopdt, _) => 94.0,
-                (Family::N4sid | Family::Moesp | Family::Tf, 1) => 50.0,
+                (Family::Tf, 1) => 94.0,
+                (Family::N4sid | Family::Moesp, 1) => 90.0,
                 _ => 98.3,
             };
             assert!(m.score.fit_percent > floor, "{} {}", m.model.label(), m.score.fit_percent);
         }
         let grey = r.models.iter().find(|m| m.model.family == Family::Greybox).expect("greybox");
         assert!(grey.score.rms_c < 0.4, "{}", grey.score.rms_c);
+    }
+
+    #[test]
+    fn subspace_orders_one_to_eight_all_fit_like_sippy() {
+        // The `bench thermal` log: 6 h at 1 Hz with random heater, fan and height
+        // steps, identified from the heater alone, so the unmodelled inputs cap
+        // every linear model near 75 %. SIPPY's N4SID scores 74.72–75.04 % at
+        // orders 1..8 on it (docs/thermal.md); the bound is its 1-point target.
+        // Orders 6–8 are the case shift invariance alone lost (−75 %).
+        let log = Twin::default().random_log(21_600, 1.0, 1).expect("log");
+        for family in [Family::N4sid, Family::Moesp] {
+            let r = identify(std::slice::from_ref(&log), &IdentOptions { families: vec![family], ..Default::default() }).expect("identify");
+            assert!(r.failures.is_empty(), "{:?}", r.failures);
+            assert_eq!(r.models.len(), 8);
+            for m in &r.models {
+                assert!(m.score.fit_percent > 74.72 - 1.0, "{} {}", m.model.label(), m.score.fit_percent);
+            }
+        }
     }
 }

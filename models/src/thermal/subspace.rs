@@ -9,9 +9,19 @@
 //! - N4SID: the oblique projection `L32 L22⁺ [L21 L22]` with unit weights
 //!   (Van Overschee & De Moor 1994, Theorem 2).
 //!
-//! `A`, `C` follow from shift invariance; `B` and the initial states then
-//! solve a linear least-squares output-error problem, with `D = 0` (a heater
-//! cannot move the thermistor within the same sample).
+//! With `Γ = U₁ S₁^½` there are two standard estimates of `A`, `C`
+//! (Van Overschee & De Moor 1996, §4.3):
+//! - shift invariance of `Γ` (their "robust" Algorithm 2; unbiased for
+//!   finite horizons, but noise directions can make high orders unstable);
+//! - regression on the state sequence `X = Γ⁺ L32 L22⁺ W_p` (a linear map of
+//!   each column of past data): `[x(k+1); y(k)] = [A B; C 0] [x(k); u(k)]`
+//!   (their Algorithm 1, what SIPPY does; stable where the other is not).
+//!
+//! For each, `B` and the initial states are refitted by linear least squares on
+//! the simulation error (`D = 0`: a heater cannot move the thermistor within
+//! the same sample), and the candidate that simulates the data better is kept.
+//! An unstable `A` is replaced by the padded estimate `Γ⁺[Γ_down; 0]`, which is
+//! guaranteed stable (Chui & Maciejowski 1996, Theorem 1).
 
 use super::arx::Series;
 use super::linreg;
@@ -35,6 +45,7 @@ pub struct Prepared {
     horizon: usize,
     inputs: usize,
     y_scale: f64,
+    u_scale: Vec<f64>,
 }
 
 /// Build the LQ factor with `horizon` block rows (past and future).
@@ -85,7 +96,7 @@ pub fn prepare(data: &[Series], horizon: usize) -> Result<Prepared, ModelError> 
         gram[(d, d)] += ridge;
     }
     let l = gram.cholesky().ok_or_else(|| ModelError::Numerical("data Gram matrix is not positive definite".into()))?.unpack();
-    Ok(Prepared { l, horizon: i, inputs: m, y_scale })
+    Ok(Prepared { l, horizon: i, inputs: m, y_scale, u_scale })
 }
 
 impl Prepared {
@@ -120,34 +131,85 @@ impl Prepared {
         Ok((u_sorted, sv))
     }
 
-    /// `A` and `C` of order `n` from shift invariance of the observability matrix.
-    pub fn a_c(&self, n: usize, method: Method) -> Result<(DMatrix<f64>, DMatrix<f64>), ModelError> {
-        let i = self.horizon;
+    /// Candidate `(A, C)` pairs of order `n`: shift invariance, then state-sequence
+    /// regression over every experiment in `data` (the data `prepare` saw).
+    pub fn candidates(&self, data: &[Series], n: usize, method: Method) -> Result<Vec<(DMatrix<f64>, DMatrix<f64>)>, ModelError> {
+        let (i, m) = (self.horizon, self.inputs);
         if n == 0 || n >= i {
             return Err(ModelError::invalid("order", n, &format!("must be within 1..{} for horizon {i}", i - 1)));
         }
+        let pinv = |x: DMatrix<f64>| x.pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()));
         let (u, sv) = self.projection_svd(method)?;
         let gamma = DMatrix::from_fn(i, n, |r, c| u[(r, c)] * sv[c].max(0.0).sqrt());
-        let up = gamma.rows(0, i - 1).into_owned();
-        let down = gamma.rows(1, i - 1).into_owned();
-        let mut a = up.pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * down;
-        // Shift invariance can return an unstable A when the extra states are
-        // noise directions; then use the padded estimate A = Γ⁺[Γ_down; 0],
-        // which is guaranteed stable (Chui & Maciejowski 1996, Theorem 1).
-        let unstable = super::ss::eigenvalues(&a).map(|p| p.iter().any(|z| z.norm() >= 1.0)).unwrap_or(true);
-        if unstable {
-            let mut padded = DMatrix::zeros(i, n);
-            padded.rows_mut(0, i - 1).copy_from(&gamma.rows(1, i - 1));
-            a = gamma.clone().pseudo_inverse(1e-12).map_err(|e| ModelError::Numerical(e.to_string()))? * padded;
+        let gamma_pinv = pinv(gamma.clone())?;
+        let stable_or_padded = |a: DMatrix<f64>| {
+            let unstable = super::ss::eigenvalues(&a).map(|p| p.iter().any(|z| z.norm() >= 1.0)).unwrap_or(true);
+            if unstable {
+                let mut padded = DMatrix::zeros(i, n);
+                padded.rows_mut(0, i - 1).copy_from(&gamma.rows(1, i - 1));
+                &gamma_pinv * padded
+            } else {
+                a
+            }
+        };
+        let shift = stable_or_padded(pinv(gamma.rows(0, i - 1).into_owned())? * gamma.rows(1, i - 1));
+        let mut out = vec![(shift, gamma.rows(0, 1).into_owned() * self.y_scale)];
+
+        let (f, p) = (i * m, i * (m + 1));
+        let l22 = self.l.view((f, f), (p, p)).into_owned();
+        let l32 = self.l.view((f + p, f), (i, p)).into_owned();
+        // x(k + i) = K w(k), w(k) = [u(k..k+i); y(k..k+i)] (scaled, U_p rows then Y_p rows).
+        let k_map = &gamma_pinv * l32 * pinv(l22)?;
+        let (mut zz, mut xz, mut yx) = (DMatrix::<f64>::zeros(n + m, n + m), DMatrix::<f64>::zeros(n, n + m), DMatrix::<f64>::zeros(1, n));
+        let mut w = DVector::<f64>::zeros(p);
+        for s in data.iter().filter(|s| s.y.len() >= 2 * i + 1) {
+            let states: Vec<DVector<f64>> = (0..=s.y.len() - i)
+                .map(|c| {
+                    for b in 0..i {
+                        for q in 0..m {
+                            w[b * m + q] = s.u[q][c + b] / self.u_scale[q];
+                        }
+                        w[i * m + b] = s.y[c + b] / self.y_scale;
+                    }
+                    &k_map * &w
+                })
+                .collect();
+            for c in 0..states.len() - 1 {
+                let (x, t) = (&states[c], c + i);
+                let z = DVector::from_fn(n + m, |r, _| if r < n { x[r] } else { s.u[r - n][t] / self.u_scale[r - n] });
+                zz.ger(1.0, &z, &z, 1.0);
+                xz.ger(1.0, &states[c + 1], &z, 1.0);
+                yx += x.transpose() * (s.y[t] / self.y_scale);
+            }
         }
-        let c = gamma.rows(0, 1).into_owned() * self.y_scale;
-        Ok((a, c))
+        if zz[(0, 0)] > 0.0 {
+            let a = (xz * pinv(zz.clone())?).columns(0, n).into_owned();
+            let c = yx * pinv(zz.view((0, 0), (n, n)).into_owned())? * self.y_scale;
+            out.push((stable_or_padded(a), c));
+        }
+        Ok(out)
+    }
+
+    /// The order-`n` model: each candidate `(A, C)` with its least-squares `B`,
+    /// keeping the one with the smaller simulation error on `data`.
+    pub fn identify(&self, data: &[Series], n: usize, method: Method, dt_s: f64) -> Result<StateSpace, ModelError> {
+        let mut best: Option<(f64, StateSpace)> = None;
+        let mut last_err = None;
+        for (a, c) in self.candidates(data, n, method)? {
+            match fit_b(data, &a, &c, dt_s) {
+                Ok((ss, sse)) if best.as_ref().is_none_or(|(b, _)| sse < *b) => best = Some((sse, ss)),
+                Ok(_) => {}
+                Err(e) => last_err = Some(e),
+            }
+        }
+        best.map(|(_, ss)| ss).ok_or_else(|| last_err.unwrap_or_else(|| ModelError::Numerical("no subspace candidate".into())))
     }
 }
 
 /// Estimate `B` (and one initial state per experiment) by least squares on
-/// the simulation error, given `A` and `C`; `D = 0`.
-pub fn fit_b(data: &[Series], a: &DMatrix<f64>, c: &DMatrix<f64>, dt_s: f64) -> Result<StateSpace, ModelError> {
+/// the simulation error, given `A` and `C`; `D = 0`. Also returns the sum of
+/// squared simulation errors.
+pub fn fit_b(data: &[Series], a: &DMatrix<f64>, c: &DMatrix<f64>, dt_s: f64) -> Result<(StateSpace, f64), ModelError> {
     let n = a.nrows();
     let m = data.first().map_or(0, |s| s.u.len());
     let e_count = data.len();
@@ -195,9 +257,10 @@ pub fn fit_b(data: &[Series], a: &DMatrix<f64>, c: &DMatrix<f64>, dt_s: f64) -> 
         }
         r0 += s.y.len();
     }
-    let theta = linreg::solve(phi, &rhs)?;
+    let theta = linreg::solve(phi.clone(), &rhs)?;
+    let sse = (phi * &theta - rhs).norm_squared();
     let b = DMatrix::from_fn(n, m, |row, j| theta[j * n + row]);
-    StateSpace::new(a.clone(), b, c.clone(), DMatrix::zeros(1, m), Some(dt_s))
+    Ok((StateSpace::new(a.clone(), b, c.clone(), DMatrix::zeros(1, m), Some(dt_s))?, sse))
 }
 
 #[cfg(test)]
@@ -228,8 +291,7 @@ mod tests {
             let sv = prep.singular_values(method).expect("sv");
             // Two states: the third singular value is noise-level.
             assert!(sv[2] < 0.05 * sv[1], "{sv:?}");
-            let (a, c) = prep.a_c(2, method).expect("ac");
-            let ss = fit_b(&data, &a, &c, 1.0).expect("b");
+            let ss = prep.identify(&data, 2, method, 1.0).expect("identify");
             let mut poles: Vec<f64> = ss.poles().expect("poles").iter().map(|p| p.re).collect();
             poles.sort_by(f64::total_cmp);
             // σ = 0.003 noise on 4000 samples: pole errors ≈ 1e-3.

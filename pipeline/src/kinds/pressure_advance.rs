@@ -7,12 +7,12 @@ use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Manifest, Pattern, Printer};
 use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
-use fdmlab_datasets::pa::model::{KaModel, MODEL_SCHEMA};
+use fdmlab_datasets::pa::model::KaModel;
 use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{Conditions, Extruder, GridConfig, LinePattern, Material};
 use fdmlab_models::nets::TrainConfig;
-use fdmlab_models::regress::cv::{cross_validate, CvReport};
-use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_models::regress::cv::CvReport;
+use fdmlab_models::regress::mlp::MlpSettings;
 use fdmlab_reports::{num, LinePlot, Report, Table};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -34,25 +34,32 @@ pub struct PaSpec {
     pub export: ExportSpec,
 }
 
-/// `[printer]`
+/// `[printer]`: `firmware` is required; unset limits and sizes are those of
+/// [`Printer::default`] (the source's Ender-3-class printer), extruder `bowden`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PrinterSpec {
     pub firmware: String,
-    #[serde(default = "d_bed")]
-    pub bed_mm: [f64; 2],
-    #[serde(default = "d_z")]
-    pub max_z_mm: f64,
-    #[serde(default = "d_nozzle")]
-    pub nozzle_mm: f64,
-    #[serde(default = "d_filament")]
-    pub filament_mm: f64,
-    #[serde(default = "d_extruder")]
-    pub extruder: String,
-    #[serde(default = "d_max_hotend")]
-    pub max_hotend_c: f64,
-    #[serde(default = "d_max_bed")]
-    pub max_bed_c: f64,
+    #[serde(default)]
+    pub bed_mm: Option<[f64; 2]>,
+    #[serde(default)]
+    pub max_z_mm: Option<f64>,
+    #[serde(default)]
+    pub nozzle_mm: Option<f64>,
+    #[serde(default)]
+    pub filament_mm: Option<f64>,
+    #[serde(default)]
+    pub extruder: Option<String>,
+    #[serde(default)]
+    pub max_hotend_c: Option<f64>,
+    #[serde(default)]
+    pub max_bed_c: Option<f64>,
+}
+
+impl PrinterSpec {
+    fn extruder(&self) -> String {
+        self.extruder.clone().unwrap_or_else(|| "bowden".into())
+    }
 }
 
 /// `k = { start, end, step }`
@@ -107,87 +114,56 @@ pub struct PrintSpec {
     pub scale: f64,
 }
 
-/// `[dataset]`: where the K_A table comes from.
+/// `[dataset]`: where the K_A table comes from; every field has a default.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct DatasetSpec {
     /// `twin` (the source's grid measured on the twin), `file`, or `prints`.
-    #[serde(default = "d_source")]
     pub source: String,
-    #[serde(default)]
     pub file: Option<String>,
-    #[serde(default = "d_target")]
     pub target: String,
-    #[serde(default)]
     pub features: Option<Vec<String>>,
 }
 
 impl Default for DatasetSpec {
     fn default() -> Self {
-        DatasetSpec { source: d_source(), file: None, target: d_target(), features: None }
+        DatasetSpec { source: "twin".into(), file: None, target: "k_a".into(), features: None }
     }
 }
 
-/// `[model]`
+/// `[model]`; defaults are [`MlpSettings::default`] and 5 folds.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct ModelSpec {
-    #[serde(default = "d_hidden")]
     pub hidden: [usize; 3],
-    #[serde(default = "d_epochs")]
     pub epochs: usize,
-    #[serde(default = "d_batch")]
     pub batch: usize,
-    #[serde(default = "d_lr")]
     pub learning_rate: f64,
-    #[serde(default = "d_folds")]
     pub folds: usize,
 }
 
 impl Default for ModelSpec {
     fn default() -> Self {
-        ModelSpec { hidden: d_hidden(), epochs: d_epochs(), batch: d_batch(), learning_rate: d_lr(), folds: d_folds() }
+        let MlpSettings { hidden, train } = MlpSettings::default();
+        ModelSpec { hidden, epochs: train.epochs, batch: train.batch_size, learning_rate: train.learning_rate, folds: 5 }
     }
 }
 
-/// `[export]`
+/// `[export]`; by default every format.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct ExportSpec {
-    #[serde(default = "d_formats")]
     pub formats: Vec<String>,
     /// Values of the inputs an export does not sweep.
-    #[serde(default)]
     pub set: BTreeMap<String, toml::Value>,
 }
 
 impl Default for ExportSpec {
     fn default() -> Self {
-        ExportSpec { formats: d_formats(), set: BTreeMap::new() }
+        ExportSpec { formats: ["marlin", "klipper", "reprap", "orca", "c-header", "json"].iter().map(|s| s.to_string()).collect(), set: BTreeMap::new() }
     }
 }
 
-fn d_bed() -> [f64; 2] {
-    [220.0, 220.0]
-}
-fn d_z() -> f64 {
-    250.0
-}
-fn d_nozzle() -> f64 {
-    0.4
-}
-fn d_filament() -> f64 {
-    1.75
-}
-fn d_extruder() -> String {
-    "bowden".into()
-}
-fn d_max_hotend() -> f64 {
-    260.0
-}
-fn d_max_bed() -> f64 {
-    110.0
-}
 fn d_pattern() -> String {
     "lines".into()
 }
@@ -199,30 +175,6 @@ fn d_band() -> f64 {
 }
 fn d_scale() -> f64 {
     10.0
-}
-fn d_source() -> String {
-    "twin".into()
-}
-fn d_target() -> String {
-    "k_a".into()
-}
-fn d_hidden() -> [usize; 3] {
-    [64, 64, 32]
-}
-fn d_epochs() -> usize {
-    500
-}
-fn d_batch() -> usize {
-    128
-}
-fn d_lr() -> f64 {
-    0.01
-}
-fn d_folds() -> usize {
-    5
-}
-fn d_formats() -> Vec<String> {
-    ["marlin", "klipper", "reprap", "orca", "c-header", "json"].iter().map(|s| s.to_string()).collect()
 }
 
 /// Features of the twin's grid and of ingested prints.
@@ -246,14 +198,15 @@ fn toml_text(v: &toml::Value) -> String {
 impl PaSpec {
     fn printer(&self, spec: &SpecFile) -> Result<Printer> {
         let firmware = Firmware::parse(&self.printer.firmware).map_err(|e| spec.bad_value("printer.firmware", e.to_string()))?;
+        let (p, d) = (&self.printer, Printer::default());
         Ok(Printer {
             firmware,
-            bed_mm: self.printer.bed_mm,
-            max_z_mm: self.printer.max_z_mm,
-            nozzle_mm: self.printer.nozzle_mm,
-            filament_mm: self.printer.filament_mm,
-            max_hotend_c: self.printer.max_hotend_c,
-            max_bed_c: self.printer.max_bed_c,
+            bed_mm: p.bed_mm.unwrap_or(d.bed_mm),
+            max_z_mm: p.max_z_mm.unwrap_or(d.max_z_mm),
+            nozzle_mm: p.nozzle_mm.unwrap_or(d.nozzle_mm),
+            filament_mm: p.filament_mm.unwrap_or(d.filament_mm),
+            max_hotend_c: p.max_hotend_c.unwrap_or(d.max_hotend_c),
+            max_bed_c: p.max_bed_c.unwrap_or(d.max_bed_c),
         })
     }
 
@@ -283,20 +236,20 @@ impl PaSpec {
 
     /// Range checks and a dry run of every G-code writer (so refusals are located).
     fn check(&self, spec: &SpecFile) -> Result<Vec<PrintJob>> {
-        Extruder::parse(&self.printer.extruder).map_err(|e| spec.bad_value("printer.extruder", e.to_string()))?;
+        Extruder::parse(&self.printer.extruder()).map_err(|e| spec.bad_value("printer.extruder", e.to_string()))?;
         let mut jobs = Vec::new();
         let printer = self.printer(spec)?;
         let base = self.calibration(spec, None)?;
         calibration::write(&printer, &base).map_err(|e| spec.bad_value("calibration", e.to_string()))?;
-        let ds = self.calibration.nozzle_setting_mm.unwrap_or(self.printer.nozzle_mm);
-        jobs.push(PrintJob { printer: printer.clone(), calibration: base, extruder: self.printer.extruder.clone(), nozzle_setting_mm: ds });
+        let ds = self.calibration.nozzle_setting_mm.unwrap_or(printer.nozzle_mm);
+        jobs.push(PrintJob { printer: printer.clone(), calibration: base, extruder: self.printer.extruder(), nozzle_setting_mm: ds });
         for (i, p) in self.prints.iter().enumerate() {
             let c = self.calibration(spec, Some(p))?;
             calibration::write(&printer, &c).map_err(|e| spec.bad_value(&format!("prints.{i}"), e.to_string()))?;
             if !(p.scale > 0.0 && p.scale <= 1000.0) {
                 return Err(spec.bad_value("prints.scale", "must be within (0, 1000]"));
             }
-            jobs.push(PrintJob { printer: printer.clone(), calibration: c, extruder: self.printer.extruder.clone(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
+            jobs.push(PrintJob { printer: printer.clone(), calibration: c, extruder: self.printer.extruder(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
         }
         let m = &self.model;
         let rules: [(&str, bool, &str); 6] = [
@@ -396,7 +349,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     };
     let train_params = serde_json::json!({ "settings": settings, "folds": s.model.folds, "target": target, "features": features, "data": [dataset, data_name] });
     stages.push(
-        Stage::new("train", 1, train_params, move |input| {
+        Stage::new("train", 2, train_params, move |input| {
             let settings: MlpSettings = serde_json::from_value(input.params["settings"].clone()).map_err(|e| Error::Stage { stage: "train".into(), message: e.to_string() })?;
             let folds = input.params["folds"].as_u64().unwrap_or(5) as usize;
             let target = input.params["target"].as_str().unwrap_or("k_a").to_string();
@@ -405,11 +358,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let name = input.params["data"][1].as_str().unwrap_or("data.csv").to_string();
             let bytes = input.output(&src, &name)?;
             let t = table::load(&bytes, &name, &target, features.as_deref())?;
-            let cv = cross_validate(&t.design, folds.min(t.design.rows()), settings.train.seed, &settings)?;
-            let all: Vec<usize> = (0..t.design.rows()).collect();
-            let model = MlpModel::fit(&t.design, &all, &settings)?;
-            let km = KaModel { schema: MODEL_SCHEMA.into(), encoding: t.encoding.clone(), settings, model, cv: cv.models.clone(), folds, rows: t.design.rows(), support: t.support() };
-            let mut out = StageOutput::default().add("model.json", "application/json", km.to_json()?).add_json("cv.json", &cv)?;
+            let (km, cv) = KaModel::train(&t, &settings, folds.min(t.design.rows()))?;
+            let bpk = km.model.to_burnpack()?;
+            let mut out = StageOutput::default().add("model.json", "application/json", km.to_json()?).add("model.bpk", "application/octet-stream", bpk).add_json("cv.json", &cv)?;
             for m in &cv.models {
                 out = out.metric(&format!("{}_mae", m.name), m.mae).metric(&format!("{}_max_error", m.name), m.max_error);
             }

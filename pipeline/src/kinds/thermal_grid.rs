@@ -257,18 +257,23 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
 fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experiment], responses: &serde_json::Value, source: &serde_json::Value) -> Report {
     let mut r = Report::new(title);
     r.paragraph("Synthetic step tests from the physical twin on the source's identification grid (table 1) and verification grid (table 3). Black-box models are fitted per identification set as in the source; the grey box is fitted on all four sets with fan duty and head height as inputs.");
-    r.heading("Fit by order (identification set 1, own data)");
-    let mut fit_plot = LinePlot::new("Fit by order, set 1", "order", "fit %");
+    r.heading("Fit by order (each identification set, own data)");
+    // Black-box models per set; the grey box ("all/") is one point, shown in the table.
+    let mut sets: Vec<&str> = entries.iter().filter_map(|e| e.label.split_once('/').map(|(set, _)| set)).filter(|set| set.starts_with("set")).collect();
+    sets.dedup();
     let mut families: Vec<Family> = entries.iter().map(|e| e.model.family).collect();
     families.sort();
     families.dedup();
-    for f in families {
-        let pts: Vec<(f64, f64)> = entries.iter().filter(|e| e.label.starts_with("set1/") && e.model.family == f).map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0))).collect();
-        if !pts.is_empty() {
-            fit_plot = fit_plot.line(f.name(), pts);
+    for set in sets {
+        let mut fit_plot = LinePlot::new(format!("Fit by order, {set}"), "order", "fit %");
+        for &f in &families {
+            let pts: Vec<(f64, f64)> = entries.iter().filter(|e| e.label.split_once('/').is_some_and(|(s, _)| s == set) && e.model.family == f).map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0))).collect();
+            if !pts.is_empty() {
+                fit_plot = fit_plot.line(f.name(), pts);
+            }
         }
+        r.plot(fit_plot);
     }
-    r.plot(fit_plot);
     r.heading("Model × verification set (fit %)");
     let mut cols = vec!["model".to_string(), "own %".to_string()];
     cols.extend(cv.experiments.iter().cloned());
