@@ -40,6 +40,43 @@ fn taguchi_analyze_reproduces_a_published_example() {
 }
 
 #[test]
+fn taguchi_analyze_l27_with_the_five_source_factors() {
+    // The source's design (T0, Kt, J_M, b_bridge, Fc_bridge at three levels in
+    // L27) with a known additive response s = 0.1 + Σ effect(level): in an
+    // orthogonal array each level mean is exactly 0.1 + that effect, the range
+    // ranks the factors, the smallest effect is the optimum level, and each
+    // factor's sum of squares is 9·Σ effect² (zero-mean effects, no error).
+    let effects: [(&str, [f64; 3]); 5] = [
+        ("T0", [0.02, -0.015, -0.005]),
+        ("Kt", [-0.03, 0.0, 0.03]),
+        ("J_M", [0.005, -0.004, -0.001]),
+        ("b_bridge", [0.001, -0.002, 0.001]),
+        ("Fc_bridge", [-0.006, 0.01, -0.004]),
+    ];
+    let sb = Sandbox::new();
+    let array = sb.json(&["taguchi", "array", "L27", "--factors", "5"]);
+    let mut csv = format!("run,{},s\n", effects.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(","));
+    for (i, row) in array["rows"].as_array().expect("rows").iter().enumerate() {
+        let levels: Vec<usize> = row.as_array().expect("row").iter().map(|l| l.as_u64().expect("level") as usize).collect();
+        let s: f64 = 0.1 + levels.iter().zip(&effects).map(|(&l, (_, e))| e[l - 1]).sum::<f64>();
+        csv += &format!("{},{},{s}\n", i + 1, levels.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(","));
+    }
+    sb.write("l27.csv", &csv);
+    let v = sb.json(&["taguchi", "analyze", "l27.csv"]);
+    assert_eq!(v["optimum"], serde_json::json!({"T0": 2, "Kt": 1, "J_M": 2, "b_bridge": 2, "Fc_bridge": 1}));
+    let ss: Vec<f64> = effects.iter().map(|(_, e)| 9.0 * e.iter().map(|x| x * x).sum::<f64>()).collect();
+    let total: f64 = ss.iter().sum();
+    for (i, ((name, e), rank)) in effects.iter().zip([2, 1, 4, 5, 3]).enumerate() {
+        let f = &v["factors"][i];
+        for l in 0..3 {
+            assert!((f["level_means"][l].as_f64().expect("k") - (0.1 + e[l])).abs() < 1e-12, "{name} k{}", l + 1);
+        }
+        assert_eq!(f["rank"], rank, "{name}");
+        assert!((v["anova"][i]["percent"].as_f64().expect("percent") - 100.0 * ss[i] / total).abs() < 1e-6, "{name}");
+    }
+}
+
+#[test]
 fn taguchi_analyze_names_the_bad_cell() {
     let sb = Sandbox::new();
     sb.write("bad.csv", "A,B,s\n1,1,0.1\n2,7,0.2\n");
