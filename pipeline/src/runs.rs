@@ -25,7 +25,8 @@ pub struct StageRun {
     pub inputs: Vec<InputRef>,
     /// Outputs.
     pub outputs: Vec<OutputRef>,
-    /// Scalar results.
+    /// Scalar results (non-finite ones stored as `null`).
+    #[serde(with = "crate::stage::metric_map")]
     pub metrics: BTreeMap<String, f64>,
     /// Wall time in this run, s (≈ 0 when cached).
     pub wall_s: f64,
@@ -95,17 +96,26 @@ pub fn write_record(store: &Store, record: &RunRecord) -> Result<()> {
     store.write_atomic(&path, &bytes)
 }
 
-/// Every readable run record, oldest first.
+/// Every run record, oldest first, and the `run.json` files that exist but
+/// cannot be read (path: reason). A run still starting has no record yet.
+pub fn scan(store: &Store) -> (Vec<RunRecord>, Vec<String>) {
+    let (mut runs, mut bad) = (Vec::new(), Vec::new());
+    for e in fs::read_dir(store.root().join("runs")).into_iter().flatten().filter_map(|e| e.ok()) {
+        let p = e.path().join("run.json");
+        let Ok(bytes) = fs::read(&p) else { continue };
+        match serde_json::from_slice::<RunRecord>(&bytes) {
+            Ok(r) => runs.push(r),
+            Err(err) => bad.push(format!("{}: {err}", p.display())),
+        }
+    }
+    runs.sort_by(|a: &RunRecord, b| a.id.cmp(&b.id));
+    bad.sort();
+    (runs, bad)
+}
+
+/// Every readable run record, oldest first (see [`scan`] for the unreadable ones).
 pub fn list(store: &Store) -> Vec<RunRecord> {
-    let mut out: Vec<RunRecord> = fs::read_dir(store.root().join("runs"))
-        .into_iter()
-        .flatten()
-        .filter_map(|e| e.ok())
-        .filter_map(|e| fs::read(e.path().join("run.json")).ok())
-        .filter_map(|b| serde_json::from_slice(&b).ok())
-        .collect();
-    out.sort_by(|a: &RunRecord, b| a.id.cmp(&b.id));
-    out
+    scan(store).0
 }
 
 /// Find a run by id or unique id prefix; `latest` is the newest run.
@@ -167,28 +177,27 @@ pub(crate) struct References {
     pub bad_records: Vec<String>,
 }
 
-/// What run records reference (used by `gc`).
-pub(crate) fn referenced_by_runs(store: &Store) -> References {
+/// What run records reference (used by `gc`). An unreadable run record is an
+/// error: its blobs would otherwise look unreferenced and be deleted.
+pub(crate) fn referenced_by_runs(store: &Store) -> Result<References> {
+    let (runs, bad) = scan(store);
+    if let Some(first) = bad.first() {
+        return Err(Error::Store(format!("refusing to collect garbage: {} run record(s) cannot be read, first {first}", bad.len())));
+    }
     let mut refs = References::default();
-    for r in list(store) {
+    for r in runs {
         refs.blobs.extend(r.blobs().cloned());
         refs.stage_keys.extend(r.stages.iter().map(|s| s.key.clone()));
     }
-    refs
+    Ok(refs)
 }
 
 /// What run records and stage records reference (used by `verify`).
 pub(crate) fn referenced(store: &Store) -> References {
-    let mut refs = References::default();
-    for dir in ["runs"] {
-        for e in fs::read_dir(store.root().join(dir)).into_iter().flatten().filter_map(|e| e.ok()) {
-            let p = e.path().join("run.json");
-            match fs::read(&p).ok().and_then(|b| serde_json::from_slice::<RunRecord>(&b).ok()) {
-                Some(r) => refs.blobs.extend(r.blobs().cloned()),
-                None if p.exists() => refs.bad_records.push(p.display().to_string()),
-                None => {} // a run still starting, or one that failed before writing its record
-            }
-        }
+    let (runs, bad) = scan(store);
+    let mut refs = References { bad_records: bad, ..References::default() };
+    for r in runs {
+        refs.blobs.extend(r.blobs().cloned());
     }
     for e in fs::read_dir(store.root().join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
         match fs::read(e.path()).ok().and_then(|b| serde_json::from_slice::<crate::stage::StageRecord>(&b).ok()) {

@@ -197,7 +197,7 @@ impl Store {
     /// Remove blobs and stage records no run references, and stale temp files.
     pub fn gc(&self) -> Result<GcReport> {
         let mut report = GcReport::default();
-        let refs = crate::runs::referenced_by_runs(self);
+        let refs = crate::runs::referenced_by_runs(self)?;
         for entry in fs::read_dir(self.root.join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
             let name = entry.file_name().to_string_lossy().to_string();
             let key = name.trim_end_matches(".json");

@@ -11,6 +11,8 @@ pub enum SeriesStyle {
     Line,
     /// Unconnected markers.
     Points,
+    /// Connected line with a marker at each point (readable for few points).
+    LinePoints,
 }
 
 /// One named series of (x, y) points.
@@ -56,6 +58,11 @@ impl LinePlot {
     /// Add a line series (builder style).
     pub fn line(mut self, name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
         self.series.push(Series { name: name.into(), points, style: SeriesStyle::Line });
+        self
+    }
+    /// Add a line series with a marker at each point (builder style).
+    pub fn line_points(mut self, name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        self.series.push(Series { name: name.into(), points, style: SeriesStyle::LinePoints });
         self
     }
     /// Add a marker series (builder style).
@@ -108,6 +115,7 @@ impl LinePlot {
                 let anno = match s.style {
                     SeriesStyle::Line => chart.draw_series(LineSeries::new(pts, color.stroke_width(2))).map_err(|e| err(&e))?,
                     SeriesStyle::Points => chart.draw_series(pts.map(|p| Circle::new(p, 3, color.filled()))).map_err(|e| err(&e))?,
+                    SeriesStyle::LinePoints => chart.draw_series(LineSeries::new(pts, color.stroke_width(2)).point_size(3)).map_err(|e| err(&e))?,
                 };
                 anno.label(s.name.clone()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
             }
@@ -117,5 +125,18 @@ impl LinePlot {
             root.present().map_err(|e| err(&e))?;
         }
         Ok(svg)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_points_marks_every_point_and_a_single_point_stays_visible() {
+        let svg = LinePlot::new("Fit by order", "order", "fit %").line_points("arx", vec![(1.0, 90.0), (2.0, 95.0), (3.0, 96.0)]).line_points("fopdt", vec![(1.0, 93.0)]).to_svg().expect("svg");
+        assert_eq!(svg.matches("<circle").count(), 4, "{svg}");
+        let plain = LinePlot::new("t", "x", "y").line("arx", vec![(1.0, 90.0), (2.0, 95.0)]).to_svg().expect("svg");
+        assert_eq!(plain.matches("<circle").count(), 0);
     }
 }

@@ -41,7 +41,10 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     match cmd {
         RunsCommand::List => {
-            let list = runs::list(&store);
+            let (list, unreadable) = runs::scan(&store);
+            for bad in &unreadable {
+                eprintln!("warning: unreadable run record {bad} (see `fdmlab verify`)");
+            }
             let value = serde_json::Value::Array(
                 list.iter()
                     .map(|r| serde_json::json!({"id": r.id, "experiment": r.experiment, "kind": r.kind, "started_at": r.started_at, "stages": r.stages.len(), "stages_run": r.stages_run(), "wall_s": r.wall_s}))

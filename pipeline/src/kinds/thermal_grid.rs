@@ -241,7 +241,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .add("thermal_gains.h", "text/x-c", ex::c_header(&placement, "best generaliser")?.into_bytes()))
         })
         .after(&["identify", "control"]),
-        Stage::new("report", 1, serde_json::json!({ "title": title }), |input| {
+        Stage::new("report", 2, serde_json::json!({ "title": title }), |input| {
             let title = input.params.get("title").and_then(|t| t.as_str()).unwrap_or("thermal grid").to_string();
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
@@ -269,7 +269,7 @@ fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experim
         for &f in &families {
             let pts: Vec<(f64, f64)> = entries.iter().filter(|e| e.label.split_once('/').is_some_and(|(s, _)| s == set) && e.model.family == f).map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0))).collect();
             if !pts.is_empty() {
-                fit_plot = fit_plot.line(f.name(), pts);
+                fit_plot = fit_plot.line_points(f.name(), pts);
             }
         }
         r.plot(fit_plot);
