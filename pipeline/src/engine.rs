@@ -57,6 +57,17 @@ pub fn run(store: &Store, path: &Path, opts: &RunOptions) -> Result<RunRecord> {
     let started = Instant::now();
     let started_at = runs::iso_utc_now();
     let (spec, stages) = validate(path)?;
+    // The run folder exists from the start, so `gc` knows a run is in flight
+    // and keeps what it writes before its record lands.
+    let id = runs::new_run_id(store)?;
+    let result = run_stages(store, &spec, stages, opts, id.clone(), started, started_at);
+    if result.is_err() {
+        runs::abandon(store, &id);
+    }
+    result
+}
+
+fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOptions, id: String, started: Instant, started_at: String) -> Result<RunRecord> {
     let kind = spec.header.kind.clone();
     let bar = progress_bar(opts.progress, stages.len(), &spec.header.name);
     let mut upstream: BTreeMap<String, Vec<OutputRef>> = BTreeMap::new();
@@ -135,7 +146,7 @@ pub fn run(store: &Store, path: &Path, opts: &RunOptions) -> Result<RunRecord> {
     }
     let reports_dir = materialise_reports(store, &spec.header.name, &done)?;
     let record = RunRecord {
-        id: runs::new_run_id(store)?,
+        id,
         experiment: spec.header.name.clone(),
         kind,
         spec_path: spec.path.display().to_string(),
@@ -149,7 +160,7 @@ pub fn run(store: &Store, path: &Path, opts: &RunOptions) -> Result<RunRecord> {
         reports_dir: reports_dir.map(|p| p.display().to_string()),
     };
     runs::write_record(store, &record)?;
-    write_lock(store, &spec, &record)?;
+    write_lock(store, spec, &record)?;
     Ok(record)
 }
 

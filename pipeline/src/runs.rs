@@ -7,6 +7,9 @@ use crate::store::{Hash, Store};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs;
+use std::io::ErrorKind;
+use std::path::PathBuf;
+use std::time::SystemTime;
 
 /// One stage as it happened in a run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -96,26 +99,65 @@ pub fn write_record(store: &Store, record: &RunRecord) -> Result<()> {
     store.write_atomic(&path, &bytes)
 }
 
-/// Every run record, oldest first, and the `run.json` files that exist but
-/// cannot be read (path: reason). A run still starting has no record yet.
-pub fn scan(store: &Store) -> (Vec<RunRecord>, Vec<String>) {
-    let (mut runs, mut bad) = (Vec::new(), Vec::new());
-    for e in fs::read_dir(store.root().join("runs")).into_iter().flatten().filter_map(|e| e.ok()) {
-        let p = e.path().join("run.json");
-        let Ok(bytes) = fs::read(&p) else { continue };
-        match serde_json::from_slice::<RunRecord>(&bytes) {
-            Ok(r) => runs.push(r),
-            Err(err) => bad.push(format!("{}: {err}", p.display())),
-        }
-    }
-    runs.sort_by(|a: &RunRecord, b| a.id.cmp(&b.id));
-    bad.sort();
-    (runs, bad)
+/// What the `runs/` folder holds.
+#[derive(Debug, Default)]
+pub struct RunScan {
+    /// Readable run records, oldest first.
+    pub runs: Vec<RunRecord>,
+    /// Records that exist but cannot be read (`path: reason`).
+    pub bad: Vec<String>,
+    /// Run folders without a record yet (a run in flight, or one killed) and
+    /// when each was created.
+    pub unfinished: Vec<(PathBuf, SystemTime)>,
 }
 
-/// Every readable run record, oldest first (see [`scan`] for the unreadable ones).
+/// Read every run folder.
+pub fn scan(store: &Store) -> RunScan {
+    let mut out = RunScan::default();
+    let dir = store.root().join("runs");
+    let entries = match fs::read_dir(&dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == ErrorKind::NotFound => return out,
+        Err(e) => {
+            out.bad.push(format!("{}: {e}", dir.display()));
+            return out;
+        }
+    };
+    for entry in entries {
+        let path = match entry {
+            Ok(entry) => entry.path(),
+            Err(e) => {
+                out.bad.push(format!("{}: {e}", dir.display()));
+                continue;
+            }
+        };
+        let record = path.join("run.json");
+        match fs::read(&record) {
+            Ok(bytes) => match serde_json::from_slice::<RunRecord>(&bytes) {
+                Ok(r) => out.runs.push(r),
+                Err(e) => out.bad.push(format!("{}: {e}", record.display())),
+            },
+            Err(e) if e.kind() == ErrorKind::NotFound => {
+                let created = fs::metadata(&path).and_then(|m| m.modified()).unwrap_or_else(|_| SystemTime::now());
+                out.unfinished.push((path, created));
+            }
+            Err(e) => out.bad.push(format!("{}: {e}", record.display())),
+        }
+    }
+    out.runs.sort_by(|a, b| a.id.cmp(&b.id));
+    out.bad.sort();
+    out
+}
+
+/// Every readable run record, oldest first (see [`scan`] for the others).
 pub fn list(store: &Store) -> Vec<RunRecord> {
-    scan(store).0
+    scan(store).runs
+}
+
+/// Drop the folder of a run that failed before writing its record.
+pub fn abandon(store: &Store, id: &str) {
+    // Best effort: an empty folder left behind only makes `gc` cautious.
+    let _ = fs::remove_dir(store.root().join("runs").join(id));
 }
 
 /// Find a run by id or unique id prefix; `latest` is the newest run.
@@ -179,13 +221,12 @@ pub(crate) struct References {
 
 /// What run records reference (used by `gc`). An unreadable run record is an
 /// error: its blobs would otherwise look unreferenced and be deleted.
-pub(crate) fn referenced_by_runs(store: &Store) -> Result<References> {
-    let (runs, bad) = scan(store);
-    if let Some(first) = bad.first() {
-        return Err(Error::Store(format!("refusing to collect garbage: {} run record(s) cannot be read, first {first}", bad.len())));
+pub(crate) fn referenced_by_runs(scan: &RunScan) -> Result<References> {
+    if let Some(first) = scan.bad.first() {
+        return Err(Error::Store(format!("refusing to collect garbage: {} run record(s) cannot be read, first {first}", scan.bad.len())));
     }
     let mut refs = References::default();
-    for r in runs {
+    for r in &scan.runs {
         refs.blobs.extend(r.blobs().cloned());
         refs.stage_keys.extend(r.stages.iter().map(|s| s.key.clone()));
     }
@@ -194,7 +235,7 @@ pub(crate) fn referenced_by_runs(store: &Store) -> Result<References> {
 
 /// What run records and stage records reference (used by `verify`).
 pub(crate) fn referenced(store: &Store) -> References {
-    let (runs, bad) = scan(store);
+    let RunScan { runs, bad, .. } = scan(store);
     let mut refs = References { bad_records: bad, ..References::default() };
     for r in runs {
         refs.blobs.extend(r.blobs().cloned());

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// A blake3 content hash, 64 lower-case hex digits.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -73,6 +74,13 @@ pub struct GcReport {
     pub removed_stage_records: usize,
     /// Stale temp files removed.
     pub removed_temp: usize,
+    /// Unreferenced blobs and stage records kept because they are recent or
+    /// belong to a run in flight.
+    pub kept_recent: usize,
+    /// Runs in flight (folders without a record, younger than a day).
+    pub runs_in_flight: usize,
+    /// Folders of killed runs (no record, older than a day) removed.
+    pub removed_unfinished_runs: usize,
 }
 
 /// A store rooted at a folder.
@@ -195,27 +203,64 @@ impl Store {
     }
 
     /// Remove blobs and stage records no run references, and stale temp files.
+    ///
+    /// What a run in flight has written is not referenced by any record yet,
+    /// so everything modified since the start of the oldest unfinished run (a
+    /// run folder without `run.json`, younger than a day), or in the last
+    /// hour, is kept, with every blob a kept stage record names. Unfinished
+    /// folders older than a day are left by killed runs and are removed.
     pub fn gc(&self) -> Result<GcReport> {
         let mut report = GcReport::default();
-        let refs = crate::runs::referenced_by_runs(self)?;
+        let scan = crate::runs::scan(self);
+        let refs = crate::runs::referenced_by_runs(&scan)?;
+        let now = std::time::SystemTime::now();
+        let (hour, day) = (Duration::from_secs(3600), Duration::from_secs(86_400));
+        let age = |t: std::time::SystemTime| now.duration_since(t).unwrap_or_default();
+        let mut cutoff = now.checked_sub(hour).unwrap_or(std::time::UNIX_EPOCH);
+        for (dir, created) in &scan.unfinished {
+            if age(*created) > day {
+                if fs::remove_dir(dir).is_ok() {
+                    report.removed_unfinished_runs += 1;
+                }
+            } else {
+                cutoff = cutoff.min(*created);
+                report.runs_in_flight += 1;
+            }
+        }
+        let recent = |p: &Path| fs::metadata(p).and_then(|m| m.modified()).map(|t| t >= cutoff).unwrap_or(true);
+        let mut keep_blobs = refs.blobs;
         for entry in fs::read_dir(self.root.join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
             let name = entry.file_name().to_string_lossy().to_string();
             let key = name.trim_end_matches(".json");
-            if !refs.stage_keys.contains(key) {
-                fs::remove_file(entry.path()).map_err(|e| Error::io(&entry.path(), e))?;
-                report.removed_stage_records += 1;
+            if refs.stage_keys.contains(key) {
+                continue;
             }
+            if recent(&entry.path()) {
+                let record = fs::read(entry.path()).ok().and_then(|b| serde_json::from_slice::<crate::stage::StageRecord>(&b).ok());
+                match record {
+                    Some(r) => keep_blobs.extend(r.inputs.into_iter().map(|i| i.hash).chain(r.outputs.into_iter().map(|o| o.hash))),
+                    None => return Err(Error::Store(format!("refusing to collect garbage: recent stage record {} cannot be read", entry.path().display()))),
+                }
+                report.kept_recent += 1;
+                continue;
+            }
+            fs::remove_file(entry.path()).map_err(|e| Error::io(&entry.path(), e))?;
+            report.removed_stage_records += 1;
         }
         for h in self.blobs() {
-            if !refs.blobs.contains(&h) {
-                let p = self.blob_path(&h);
-                report.freed_bytes += fs::metadata(&p).map(|m| m.len()).unwrap_or(0);
-                fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-                report.removed_blobs += 1;
+            let p = self.blob_path(&h);
+            if keep_blobs.contains(&h) {
+                continue;
             }
+            if recent(&p) {
+                report.kept_recent += 1;
+                continue;
+            }
+            report.freed_bytes += fs::metadata(&p).map(|m| m.len()).unwrap_or(0);
+            fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            report.removed_blobs += 1;
         }
         // Temp files of a writer still running are young; only old ones are litter.
-        let hour = std::time::Duration::from_secs(3600);
         for entry in fs::read_dir(self.root.join("tmp")).into_iter().flatten().filter_map(|e| e.ok()) {
             let old = entry.metadata().and_then(|m| m.modified()).map(|t| t.elapsed().unwrap_or_default() > hour).unwrap_or(false);
             if old && fs::remove_file(entry.path()).is_ok() {

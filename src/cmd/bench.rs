@@ -43,6 +43,9 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn engine_bench(spec: &std::path::Path, repeat: u32, ctx: &Ctx) -> anyhow::Result<()> {
+    if !spec.is_file() {
+        return Err(fdmlab_pipeline::Error::bad_input(format!("spec `{}` not found (the default is relative to the repository root)", spec.display())).into());
+    }
     let scratch = tempdir()?;
     // Run a copy of the spec so its lock file lands in the scratch folder.
     let copy = scratch.join(spec.file_name().unwrap_or_default());

@@ -41,8 +41,8 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     match cmd {
         RunsCommand::List => {
-            let (list, unreadable) = runs::scan(&store);
-            for bad in &unreadable {
+            let runs::RunScan { runs: list, bad, .. } = runs::scan(&store);
+            for bad in &bad {
                 eprintln!("warning: unreadable run record {bad} (see `fdmlab verify`)");
             }
             let value = serde_json::Value::Array(
@@ -133,7 +133,14 @@ pub fn gc(ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let report = store.gc()?;
     ctx.emit(&serde_json::to_value(&report)?, || {
-        format!("removed {} blob(s) ({} B), {} stage record(s), {} temp file(s)\n", report.removed_blobs, report.freed_bytes, report.removed_stage_records, report.removed_temp)
+        let mut s = format!("removed {} blob(s) ({} B), {} stage record(s), {} temp file(s)\n", report.removed_blobs, report.freed_bytes, report.removed_stage_records, report.removed_temp);
+        if report.kept_recent > 0 || report.runs_in_flight > 0 {
+            s += &format!("kept {} unreferenced item(s) written in the last hour or by {} run(s) in flight\n", report.kept_recent, report.runs_in_flight);
+        }
+        if report.removed_unfinished_runs > 0 {
+            s += &format!("removed {} folder(s) of runs killed over a day ago\n", report.removed_unfinished_runs);
+        }
+        s
     });
     Ok(())
 }

@@ -239,9 +239,11 @@ fn read_text(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).map_err(|e| Error::Io { path: path.display().to_string(), source: e }.into())
 }
 
-fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<InputRef>)> {
+/// Parse every log; returns the experiments and each file's (name, text) for
+/// [`store_inputs`] once the store is open (bad input writes nothing).
+fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<(String, String)>)> {
     let mut exps = Vec::new();
-    let mut refs = Vec::new();
+    let mut files = Vec::new();
     for p in paths {
         let text = read_text(p)?;
         let name = p.display().to_string();
@@ -249,10 +251,15 @@ fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Exper
         for n in notes {
             eprintln!("{name}: {n}");
         }
-        refs.push(InputRef { name: format!("file:{name}"), hash: Hash::of(text.as_bytes()) });
+        files.push((name, text));
         exps.push(e);
     }
-    Ok((exps, refs))
+    Ok((exps, files))
+}
+
+/// Store the input files so the run record's input hashes resolve.
+fn store_inputs(store: &fdmlab_pipeline::Store, files: &[(String, String)]) -> anyhow::Result<Vec<InputRef>> {
+    files.iter().map(|(name, text)| Ok(InputRef { name: format!("file:{name}"), hash: store.put(text.as_bytes())? })).collect()
 }
 
 /// Parse `1..8` or `1,2,4`.
@@ -275,7 +282,8 @@ fn parse_orders(s: &str) -> anyhow::Result<Vec<usize>> {
 
 fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let read = a.read.options()?;
-    let (exps, mut inputs) = read_logs(&a.logs, &read)?;
+    let (exps, log_files) = read_logs(&a.logs, &read)?;
+    let (verif, verif_files) = read_logs(&a.verify, &read)?;
     let mut opts = IdentOptions { orders: parse_orders(&a.orders)?, inputs: a.inputs.split(',').map(|s| s.trim().to_string()).collect(), horizon: a.horizon, tf_zeros: a.tf_zeros, ..Default::default() };
     if let Some(f) = &a.families {
         opts.families = f.split(',').map(|s| Family::parse(s.trim())).collect::<Result<_, _>>().map_err(|e| bad(format!("--families: {e}")))?;
@@ -285,6 +293,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let result = ident::identify(&exps, &opts)?;
     let wall = t.elapsed().as_secs_f64();
     let store = ctx.store()?;
+    let mut inputs = store_inputs(&store, &log_files)?;
     let mut artifacts = Vec::new();
     let mut rows = Vec::new();
     let mut metrics = BTreeMap::new();
@@ -302,8 +311,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     }
     let mut cv_text = String::new();
     if !a.verify.is_empty() {
-        let (verif, vrefs) = read_logs(&a.verify, &read)?;
-        inputs.extend(vrefs);
+        inputs.extend(store_inputs(&store, &verif_files)?);
         let models: Vec<(String, ThermalModel, f64)> = result.models.iter().map(|m| (m.model.label(), m.model.clone(), m.score.fit_percent)).collect();
         let cv = crossval::cross_validate(&models, &verif);
         cv_text = format!("\nbest generaliser: {}\n", cv.reason);

@@ -155,12 +155,38 @@ fn gc_keeps_what_runs_reference_and_drops_the_rest() {
     let before = sb.json(&["verify"])["checked"].as_u64().expect("n");
     let gc = sb.json(&["gc"]);
     assert_eq!(gc["removed_blobs"], 0, "{gc}");
-    // An orphan blob (no run references it) is collected.
-    let orphan = sb.store().join("objects/00");
-    std::fs::create_dir_all(&orphan).expect("dir");
-    std::fs::write(orphan.join("a".repeat(62)), b"x").expect("orphan");
+    // An orphan blob (no run references it) is kept for an hour (it may be a
+    // run's in flight), then collected.
+    let orphan_dir = sb.store().join("objects/00");
+    std::fs::create_dir_all(&orphan_dir).expect("dir");
+    let orphan = orphan_dir.join("a".repeat(62));
+    std::fs::write(&orphan, b"x").expect("orphan");
+    let gc = sb.json(&["gc"]);
+    assert_eq!((gc["removed_blobs"].as_u64(), gc["kept_recent"].as_u64()), (Some(0), Some(1)), "{gc}");
+    age(&orphan, 2 * 3600);
     assert_eq!(sb.json(&["gc"])["removed_blobs"], 1);
     assert_eq!(sb.json(&["verify"])["checked"].as_u64(), Some(before));
+
+    // A run in flight (its folder exists, its record not yet): what it wrote
+    // during the last day is kept even when older than an hour.
+    std::fs::write(&orphan, b"x").expect("orphan again");
+    age(&orphan, 3 * 3600);
+    let in_flight = sb.store().join("runs/99990101-000000.000000-abcdef");
+    std::fs::create_dir(&in_flight).expect("run folder");
+    age(&in_flight, 4 * 3600);
+    let gc = sb.json(&["gc"]);
+    assert_eq!((gc["removed_blobs"].as_u64(), gc["runs_in_flight"].as_u64()), (Some(0), Some(1)), "{gc}");
+    // A folder left by a killed run over a day ago stops protecting anything.
+    age(&in_flight, 25 * 3600);
+    let gc = sb.json(&["gc"]);
+    assert_eq!((gc["removed_blobs"].as_u64(), gc["removed_unfinished_runs"].as_u64()), (Some(1), Some(1)), "{gc}");
+    assert!(!in_flight.exists());
+}
+
+/// Set a file's or folder's modification time `secs` into the past.
+fn age(path: &std::path::Path, secs: u64) {
+    let t = std::time::SystemTime::now() - std::time::Duration::from_secs(secs);
+    std::fs::File::open(path).and_then(|f| f.set_modified(t)).expect("set mtime");
 }
 
 /// Every bad-input class: message names file, line, column and key; exit 2; nothing written.
