@@ -45,6 +45,25 @@ fn check_temperature(cmd: &Command, file: &str) -> Result<(), DatasetError> {
     Ok(())
 }
 
+/// Refuse what the step planner cannot execute faithfully instead of skipping
+/// it: arcs (`G2`/`G3`, from slicer arc fitting), inch units (`G20`), and a
+/// move with an axis word that has no number (`G1 X Y10`).
+fn check_supported(cmd: &Command, file: &str) -> Result<(), DatasetError> {
+    match cmd.name.as_str() {
+        "G2" | "G3" => return Err(DatasetError::parse(file, cmd.line, &cmd.name, format!("{} arcs are not supported; turn off arc fitting in the slicer", cmd.name))),
+        "G20" => return Err(DatasetError::parse(file, cmd.line, "G20", "inch units are not supported; use G21 (mm)")),
+        _ => {}
+    }
+    if cmd.is_move() || cmd.name == "G92" {
+        for letter in ['X', 'Y', 'Z', 'E', 'F'] {
+            if cmd.word(letter).is_some_and(|v| !v.is_finite()) {
+                return Err(DatasetError::parse(file, cmd.line, &letter.to_string(), format!("{} {letter} has no number", cmd.name)));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Convert a program to step blocks.
 pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepStream, DatasetError> {
     let program = parse(text, file)?;
@@ -53,6 +72,7 @@ pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepS
     let mut out = StepStream { blocks: Vec::new(), mix_changes: 0 };
     for cmd in &program {
         check_temperature(cmd, file)?;
+        check_supported(cmd, file)?;
         if cmd.name == "M11" {
             planner.set_mix(mix_from_m11(cmd, file)?);
             out.mix_changes += 1;
@@ -63,6 +83,9 @@ pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepS
             if let Some(b) = planner.move_to(mv.line, mv.from, mv.to, feed)? {
                 out.blocks.push(b);
             }
+        } else if cmd.name == "G92" || cmd.name == "G28" {
+            // A new coordinate origin, not a move: no steps.
+            planner.set_position(cmd.line, machine.pos)?;
         }
     }
     Ok(out)
@@ -88,6 +111,23 @@ mod tests {
     }
 
     #[test]
+    fn g92_e0_per_layer_resets_the_extruder_count() {
+        // Slicers reset E at every layer (absolute E): each G1 E0.5 after G92 E0
+        // is +0.5 mm of filament, never a retraction back to the old count.
+        let text = "G28\nG90\nM82\nG1 X10 Y10 E0.5 F1200\nG1 X20 Y10 E1.0\nG92 E0\nG1 X20 Y20 E0.5\nG92 E0\nG1 X10 Y20 E0.5\n";
+        let s = steps_from_gcode(text, "layers.gcode", StepConfig::default()).expect("ok");
+        let e: Vec<i64> = s.blocks.iter().map(|b| b.steps[3] + b.steps[4] + b.steps[5]).collect();
+        // 93 steps/mm, positions rounded: 0 → 0.5 mm is 46.5 → 47 steps, 0.5 → 1.0
+        // mm is 93 − 47 = 46; after each G92 E0 the count restarts at 0 (as
+        // firmware re-labels its step counter), so each layer's 0.5 mm is 47 again.
+        assert_eq!(e, [47, 46, 47, 47], "{e:?}");
+        // G92 X/Y re-labels the position: no steps for it, later moves count from it.
+        let s = steps_from_gcode("G90\nG1 X10 Y10 F1200\nG92 X0 Y0\nG1 X5 Y0\n", "o.gcode", StepConfig::default()).expect("ok");
+        assert_eq!(s.blocks.len(), 2);
+        assert_eq!(s.blocks[1].steps[..2], [400, 400]);
+    }
+
+    #[test]
     fn refuses_bad_programs_with_location() {
         let e = steps_from_gcode("G1 X10\nG1 X500\n", "a.gcode", StepConfig::default()).expect_err("off bed");
         assert_eq!(e.to_string(), "a.gcode:2: X: X500 leaves the bed (0..=220 mm); refused");
@@ -96,6 +136,12 @@ mod tests {
         let e = steps_from_gcode("M11 F0.8 S0.5\n", "a.gcode", StepConfig::default()).expect_err("ratio");
         assert!(e.to_string().starts_with("a.gcode:1: M11:"), "{e}");
         assert!(steps_from_gcode("M11 S0.5\n", "a.gcode", StepConfig::default()).is_err());
+        let e = steps_from_gcode("G1 X10 Y10\nG2 X20 Y10 I5 J0\n", "a.gcode", StepConfig::default()).expect_err("arc");
+        assert!(e.to_string().starts_with("a.gcode:2: G2: G2 arcs are not supported"), "{e}");
+        let e = steps_from_gcode("G20\n", "a.gcode", StepConfig::default()).expect_err("inches");
+        assert!(e.to_string().starts_with("a.gcode:1: G20:"), "{e}");
+        let e = steps_from_gcode("G1 X Y10\n", "a.gcode", StepConfig::default()).expect_err("no number");
+        assert_eq!(e.to_string(), "a.gcode:1: X: G1 X has no number");
     }
 
     proptest! {
