@@ -10,6 +10,7 @@ pub mod fit;
 pub mod hbot;
 pub mod metrics;
 pub mod nets;
+pub mod nonfinite;
 pub mod regress;
 pub mod rng;
 pub mod thermal;

@@ -29,7 +29,7 @@ pub struct StageRun {
     /// Outputs.
     pub outputs: Vec<OutputRef>,
     /// Scalar results (non-finite ones stored as `null`).
-    #[serde(with = "crate::stage::metric_map")]
+    #[serde(with = "fdmlab_models::nonfinite::map")]
     pub metrics: BTreeMap<String, f64>,
     /// Wall time in this run, s (≈ 0 when cached).
     pub wall_s: f64,
@@ -106,6 +106,8 @@ pub struct RunScan {
     pub runs: Vec<RunRecord>,
     /// Records that exist but cannot be read (`path: reason`).
     pub bad: Vec<String>,
+    /// Run ids (folder names) of those records.
+    pub bad_ids: Vec<String>,
     /// Run folders without a record yet (a run in flight, or one killed) and
     /// when each was created.
     pub unfinished: Vec<(PathBuf, SystemTime)>,
@@ -135,13 +137,19 @@ pub fn scan(store: &Store) -> RunScan {
         match fs::read(&record) {
             Ok(bytes) => match serde_json::from_slice::<RunRecord>(&bytes) {
                 Ok(r) => out.runs.push(r),
-                Err(e) => out.bad.push(format!("{}: {e}", record.display())),
+                Err(e) => {
+                    out.bad.push(format!("{}: {e}", record.display()));
+                    out.bad_ids.push(path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default());
+                }
             },
             Err(e) if e.kind() == ErrorKind::NotFound => {
                 let created = fs::metadata(&path).and_then(|m| m.modified()).unwrap_or_else(|_| SystemTime::now());
                 out.unfinished.push((path, created));
             }
-            Err(e) => out.bad.push(format!("{}: {e}", record.display())),
+            Err(e) => {
+                out.bad.push(format!("{}: {e}", record.display()));
+                out.bad_ids.push(path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default());
+            }
         }
     }
     out.runs.sort_by(|a, b| a.id.cmp(&b.id));
@@ -162,14 +170,30 @@ pub fn abandon(store: &Store, id: &str) {
 
 /// Find a run by id or unique id prefix; `latest` is the newest run.
 pub fn find(store: &Store, id: &str) -> Result<RunRecord> {
-    let runs = list(store);
+    find_opt(store, id)?.ok_or_else(|| Error::bad_input(format!("no run `{id}` (see `fdmlab runs list`)")))
+}
+
+/// Like [`find`], but `Ok(None)` when no run (readable or not) matches, so a
+/// caller can try the id as something else (a blob hash). A match that is
+/// ambiguous or whose record cannot be read is an error.
+pub fn find_opt(store: &Store, id: &str) -> Result<Option<RunRecord>> {
+    let RunScan { runs, bad, bad_ids, .. } = scan(store);
+    let unreadable = |i: usize| Error::Store(format!("run record {}", bad[i]));
     if id == "latest" {
-        return runs.into_iter().last().ok_or_else(|| Error::bad_input("the store has no run yet"));
+        let newest_bad = bad_ids.iter().enumerate().max_by(|a, b| a.1.cmp(b.1));
+        return match (runs.into_iter().last(), newest_bad) {
+            (Some(r), Some((i, b))) if *b > r.id => Err(unreadable(i)),
+            (None, Some((i, _))) => Err(unreadable(i)),
+            (r, _) => r.map(Some).ok_or_else(|| Error::bad_input("the store has no run yet")),
+        };
+    }
+    if let Some(i) = bad_ids.iter().position(|b| b.starts_with(id)) {
+        return Err(unreadable(i));
     }
     let mut matches: Vec<RunRecord> = runs.into_iter().filter(|r| r.id.starts_with(id)).collect();
     match (matches.pop(), matches.len()) {
-        (Some(one), 0) => Ok(one),
-        (None, _) => Err(Error::bad_input(format!("no run `{id}` (see `fdmlab runs list`)"))),
+        (Some(one), 0) => Ok(Some(one)),
+        (None, _) => Ok(None),
         (Some(_), n) => Err(Error::bad_input(format!("`{id}` matches {} runs; give more of the id", n + 1))),
     }
 }

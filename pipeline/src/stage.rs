@@ -85,7 +85,7 @@ pub struct StageRecord {
     /// Outputs.
     pub outputs: Vec<OutputRef>,
     /// Scalar results (non-finite ones stored as `null`).
-    #[serde(with = "metric_map")]
+    #[serde(with = "fdmlab_models::nonfinite::map")]
     pub metrics: BTreeMap<String, f64>,
     /// Wall time of the run that produced it, s.
     pub wall_s: f64,
@@ -186,37 +186,4 @@ pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
     });
     // serde_json maps are ordered (BTreeMap), so this text is canonical.
     Hash::of(material.to_string().as_bytes()).0
-}
-
-/// Serde for metric maps. JSON has no NaN or ∞, so a non-finite metric (e.g.
-/// "never reached the target") is written as `null` and read back as NaN;
-/// without this a record holding one could not be read again.
-pub mod metric_map {
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
-    use std::collections::BTreeMap;
-
-    pub fn serialize<S: Serializer>(m: &BTreeMap<String, f64>, s: S) -> Result<S::Ok, S::Error> {
-        m.iter().map(|(k, v)| (k, v.is_finite().then_some(*v))).collect::<BTreeMap<_, _>>().serialize(s)
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
-        Ok(BTreeMap::<String, Option<f64>>::deserialize(d)?.into_iter().map(|(k, v)| (k, v.unwrap_or(f64::NAN))).collect())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use std::collections::BTreeMap;
-
-    #[test]
-    fn non_finite_metrics_survive_a_json_round_trip() {
-        #[derive(serde::Serialize, serde::Deserialize)]
-        struct M(#[serde(with = "super::metric_map")] BTreeMap<String, f64>);
-        let m = M([("rms".to_string(), f64::NAN), ("fit".to_string(), 97.5), ("gain".to_string(), f64::INFINITY)].into_iter().collect());
-        let json = serde_json::to_string(&m).expect("json");
-        assert_eq!(json, r#"{"fit":97.5,"gain":null,"rms":null}"#);
-        let back: M = serde_json::from_str(&json).expect("read back");
-        assert_eq!(back.0["fit"], 97.5);
-        assert!(back.0["rms"].is_nan() && back.0["gain"].is_nan());
-    }
 }

@@ -253,8 +253,8 @@ fn cv_json(folds: usize, rows: usize, models: &[fdmlab_models::regress::cv::Mode
 
 /// Resolve a model: a run (its last `model.json` output) or a blob hash.
 pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
-    let hash = match runs::find(store, id) {
-        Ok(run) => run
+    let hash = match runs::find_opt(store, id)? {
+        Some(run) => run
             .stages
             .iter()
             .rev()
@@ -262,7 +262,7 @@ pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
             .find(|o| o.name == "model.json")
             .map(|o| o.hash.clone())
             .ok_or_else(|| Error::bad_input(format!("run {} has no model.json", run.id)))?,
-        Err(_) => store.resolve(id)?,
+        None => store.resolve(id)?,
     };
     let bytes = store.get(&hash)?;
     let model = KaModel::from_json(&bytes, &format!("blob {}", hash.0))?;

@@ -228,4 +228,12 @@ fn a_measured_log_is_identified_instead_of_the_twin() {
     // Same samples as the twin's run, so the same fit to the last digit.
     assert_eq!(run["stages"][1]["metrics"], twin["stages"][1]["metrics"]);
     assert_eq!(run["stages"][0]["inputs"][0]["name"], "file:measured.csv");
+    // A column the reader does not know is reported with the run, not dropped silently.
+    let csv = sb.ok(&["cat", &csv_hash]);
+    let (head, rest) = csv.split_once('\n').expect("header");
+    let extra: String = rest.lines().map(|l| format!("{l},1\n")).collect();
+    sb.write("measured.csv", &format!("{head},ambiant_c\n{extra}"));
+    let run = &sb.json(&["run", measured.to_str().expect("utf8")])[0];
+    let notes = run["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "ingest-notes.txt").expect("notes output");
+    assert!(sb.ok(&["cat", notes["hash"].as_str().expect("hash")]).contains("ambiant_c"));
 }

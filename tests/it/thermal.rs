@@ -150,6 +150,9 @@ fn gc_refuses_while_a_run_record_is_unreadable() {
     let out = sb.run(&["gc"]);
     assert_eq!(out.status.code(), Some(1), "{}", crate::common::stderr(&out));
     assert!(crate::common::stderr(&out).contains("cannot be read"), "{}", crate::common::stderr(&out));
+    // `latest` does not silently fall back to an older run.
+    let out = sb.run(&["runs", "show", "latest"]);
+    assert!(!out.status.success() && crate::common::stderr(&out).contains("run.json"), "{}", crate::common::stderr(&out));
     // Nothing was deleted: the blobs are all still there.
     std::fs::remove_dir_all(&dir).expect("drop the damaged run");
     let total = std::fs::read_dir(sb.store().join("objects")).expect("objects").filter_map(|e| e.ok()).map(|d| std::fs::read_dir(d.path()).map(|f| f.count()).unwrap_or(0)).sum::<usize>();

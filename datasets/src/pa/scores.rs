@@ -59,7 +59,7 @@ pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> 
             if let Some(k_s) = row.get(kc).cloned().flatten() {
                 let k: f64 = k_s.parse().map_err(|_| DatasetError::parse(file, at, "k", format!("`{k_s}` is not a number")))?;
                 let expect = manifest.regions[region].k;
-                if (k - expect).abs() > k_tol {
+                if !k.is_finite() || (k - expect).abs() > k_tol {
                     return Err(DatasetError::parse(file, at, "k", format!("{k} disagrees with {line_name} {line}'s K_A {expect} in the G-code")));
                 }
             }
@@ -149,6 +149,7 @@ mod tests {
             ("line,score,rater\n1,five,a\n", 2, "score"),
             ("line,score,rater\n1,5,a\n1,6,a\n", 3, "rater"),
             ("line,score,rater,k\n1,5,a,0\n3,5,a,0.5\n", 3, "k"),
+            ("line,score,rater,k\n1,5,a,0\n2,5,a,nan\n", 3, "k"),
             ("line,score\n1,5\n", 1, "rater"),
             ("band,score,rater\n1,5,\n", 2, "rater"),
         ];

@@ -138,8 +138,15 @@ pub fn load(bytes: &[u8], file: &str, target: &str, features: Option<&[String]>)
     let mut encoding = Encoding { target: t.columns[ti].trim().to_string(), features: Vec::new() };
     for &c in &fi {
         let name = t.columns[c].trim().to_string();
-        let numeric = (0..t.rows.len()).all(|r| cell(r, c).parse::<f64>().map(f64::is_finite).unwrap_or(false));
-        if numeric {
+        let is_number = |r: usize| cell(r, c).parse::<f64>().map(f64::is_finite).unwrap_or(false);
+        let numbers = (0..t.rows.len()).filter(|&r| is_number(r)).count();
+        // A column that is mostly numbers with a few other cells is a typo
+        // (`2l5` for 215), not a category: name the first offending cell.
+        if numbers < t.rows.len() && 2 * numbers > t.rows.len() {
+            let r = (0..t.rows.len()).find(|&r| !is_number(r)).unwrap_or(0);
+            return Err(DatasetError::parse(file, r + 2, &name, format!("`{}` is not a number, but {numbers} of {} cells in this column are", cell(r, c), t.rows.len())));
+        }
+        if numbers == t.rows.len() {
             encoding.features.push(Feature::Numeric { name });
         } else {
             let mut levels: Vec<String> = (0..t.rows.len()).map(|r| cell(r, c)).collect();
@@ -240,6 +247,11 @@ mod tests {
         assert!(matches!(e, Err(DatasetError::Parse { line: 3, ref field, .. }) if field == "k"));
         let e = load(b"a,k\n1,2\n2,3\n", "f.csv", "k", Some(&["b".into()]));
         assert!(matches!(e, Err(DatasetError::Parse { line: 1, ref field, .. }) if field == "b"));
+        // A typo in a numeric column is an error, not a new category.
+        let e = load(b"hotend_c,k\n210,1\n2l5,2\n220,3\n", "f.csv", "k", None);
+        assert!(matches!(e, Err(DatasetError::Parse { line: 3, ref field, .. }) if field == "hotend_c"), "{e:?}");
+        // A real categorical column (no numbers, or numbers only as a minority) is fine.
+        assert!(load(b"m,k\nPLA,1\nPETG,2\n0.4,3\n", "f.csv", "k", None).is_ok());
     }
 
     proptest::proptest! {

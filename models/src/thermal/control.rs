@@ -246,9 +246,11 @@ pub struct LoopSetup {
 pub struct Response {
     /// Time, s.
     pub time_s: Vec<f64>,
-    /// Output.
+    /// Output (an unstable loop can diverge: `null` in JSON).
+    #[serde(with = "crate::nonfinite::vec")]
     pub y: Vec<f64>,
     /// Applied (saturated) input.
+    #[serde(with = "crate::nonfinite::vec")]
     pub u: Vec<f64>,
     /// Metrics.
     pub metrics: LoopMetrics,

@@ -12,15 +12,21 @@ pub struct CrossValidation {
     pub models: Vec<String>,
     /// Column labels (verification experiment names).
     pub experiments: Vec<String>,
-    /// Fit % of row model on column experiment (−∞ when the simulation failed).
+    /// Fit % of row model on column experiment (−∞ when the simulation
+    /// diverged; `null` in JSON, read back as NaN).
+    #[serde(with = "crate::nonfinite::matrix")]
     pub fit_percent: Vec<Vec<f64>>,
     /// RMS error, °C.
+    #[serde(with = "crate::nonfinite::matrix")]
     pub rms_c: Vec<Vec<f64>>,
     /// Fit % of each model on its own training data.
+    #[serde(with = "crate::nonfinite::vec")]
     pub own_fit_percent: Vec<f64>,
     /// Mean verification fit % per model.
+    #[serde(with = "crate::nonfinite::vec")]
     pub mean_fit_percent: Vec<f64>,
     /// Worst verification fit % per model.
+    #[serde(with = "crate::nonfinite::vec")]
     pub worst_fit_percent: Vec<f64>,
     /// Index of the best generaliser.
     pub best: usize,

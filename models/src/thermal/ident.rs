@@ -149,6 +149,9 @@ pub fn identify(exps: &[Experiment], opts: &IdentOptions) -> Result<IdentResult,
         for r in list {
             match r {
                 Ok(model) => match model.score(exps) {
+                    Ok(score) if !score.fit_percent.is_finite() => {
+                        out.failures.push(Failure { family: model.family, order: model.order, reason: "its simulation diverges on its own data (unstable model)".into() })
+                    }
                     Ok(score) => out.models.push(Identified { model, score }),
                     Err(e) => out.failures.push(Failure { family: model.family, order: model.order, reason: e.to_string() }),
                 },

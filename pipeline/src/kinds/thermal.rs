@@ -132,12 +132,21 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let path = spec.input_file("data.log", &d.log)?;
             let label = d.log.clone();
             let declared = path.clone();
-            Stage::new("ingest", 1, serde_json::json!({ "log": d.log }), move |input| {
+            Stage::new("ingest", 2, serde_json::json!({ "log": d.log }), move |input| {
                 let bytes = input.file(&path)?;
                 let text = String::from_utf8_lossy(&bytes);
-                let (experiment, _notes) = fdmlab_datasets::thermal::read_log(&text, &label, &fdmlab_datasets::thermal::ReadOptions::default())?;
+                let (experiment, notes) = fdmlab_datasets::thermal::read_log(&text, &label, &fdmlab_datasets::thermal::ReadOptions::default())?;
                 let log = StepLog::from(&experiment);
-                StageOutput::default().add_json("log.json", &log)
+                // What the reader ignored or skipped (unknown columns, unparsed
+                // lines) is shown and kept with the run, as `thermal identify` does.
+                let mut out = StageOutput::default().add_json("log.json", &log)?;
+                if !notes.is_empty() {
+                    for n in &notes {
+                        eprintln!("{label}: {n}");
+                    }
+                    out = out.add("ingest-notes.txt", "text/plain", notes.iter().map(|n| format!("{label}: {n}\n")).collect::<String>().into_bytes());
+                }
+                Ok(out)
             })
             .reading(vec![declared])
         }

@@ -17,6 +17,7 @@ use fdmlab_models::thermal::ss::StateSpace;
 use fdmlab_models::thermal::twin::{identification_grid, verification_grid, StepTest, Twin};
 use fdmlab_reports::{LinePlot, Report, Table};
 use nalgebra::{Complex, DMatrix};
+use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 /// The spec of a `thermal-grid` experiment.
@@ -246,7 +247,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
             let verif: Vec<Experiment> = input.json("grid", "verif.json")?;
-            let responses: serde_json::Value = input.json("control", "responses.json")?;
+            let responses: BTreeMap<String, control::Response> = input.json("control", "responses.json")?;
             let source: serde_json::Value = input.json("control", "source-designs.json")?;
             Ok(StageOutput::default().add_report(&report(&title, &entries, &cv, &verif, &responses, &source))?)
         })
@@ -254,7 +255,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     ])
 }
 
-fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experiment], responses: &serde_json::Value, source: &serde_json::Value) -> Report {
+fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experiment], responses: &BTreeMap<String, control::Response>, source: &serde_json::Value) -> Report {
     let mut r = Report::new(title);
     r.paragraph("Synthetic step tests from the physical twin on the source's identification grid (table 1) and verification grid (table 3). Black-box models are fitted per identification set as in the source; the grey box is fitted on all four sets with fan duty and head height as inputs.");
     r.heading("Fit by order (each identification set, own data)");
@@ -303,14 +304,11 @@ fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experim
     r.heading("Closed loop on the best generaliser");
     let mut plot = LinePlot::new("Closed-loop responses", "time (s)", "rise above ambient (°C)");
     let mut mt = Table::new("Closed-loop metrics (heater duty saturated to 0..1)", ["design", "RMS after reach (°C)", "overshoot %", "settling (s)", "effort (duty·s)"]);
-    for key in ["state_feedback", "simc", "imc"] {
-        let resp = &responses[key];
-        let t: Vec<f64> = serde_json::from_value(resp["time_s"].clone()).unwrap_or_default();
-        let y: Vec<f64> = serde_json::from_value(resp["y"].clone()).unwrap_or_default();
-        plot = plot.line(key, t.iter().zip(&y).map(|(a, b)| (*a, *b)).collect());
-        let m = &resp["metrics"];
-        let f = |k: &str| m[k].as_f64().map(|v| fdmlab_reports::num(v, 3)).unwrap_or_else(|| "—".into());
-        mt.push([key.to_string(), f("rms_after_reach"), f("overshoot_percent"), f("settling_time_s"), f("effort")]);
+    for (key, resp) in ["state_feedback", "simc", "imc"].iter().filter_map(|k| responses.get(*k).map(|r| (*k, r))) {
+        plot = plot.line(key, resp.time_s.iter().zip(&resp.y).map(|(a, b)| (*a, *b)).collect());
+        let m = &resp.metrics;
+        let f = |v: Option<f64>| v.map(|v| fdmlab_reports::num(v, 3)).unwrap_or_else(|| "—".into());
+        mt.push([key.to_string(), f(m.rms_after_reach), f(Some(m.overshoot_percent)), f(m.settling_time_s), f(Some(m.effort))]);
     }
     r.plot(plot);
     r.table(mt);
