@@ -37,8 +37,8 @@ fn check_temperature(cmd: &Command, file: &str) -> Result<(), DatasetError> {
     };
     for letter in ['S', 'R'] {
         if let Some(t) = cmd.word(letter) {
-            if !(t.is_finite() && t <= limit) {
-                return Err(DatasetError::parse(file, cmd.line, &letter.to_string(), format!("{} {letter}{t} exceeds the {limit} °C limit; refused", cmd.name)));
+            if !(t.is_finite() && (0.0..=limit).contains(&t)) {
+                return Err(DatasetError::parse(file, cmd.line, &letter.to_string(), format!("{} {letter}{t} is outside 0–{limit} °C; refused", cmd.name)));
             }
         }
     }
@@ -70,6 +70,11 @@ pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepS
     let mut machine = Machine::default();
     let mut planner = StepPlanner::new(cfg, file)?;
     let mut out = StepStream { blocks: Vec::new(), mix_changes: 0 };
+    // Physical minus programmed position per axis: `G92` re-labels the
+    // programmed position (slicers reset E every layer) while the head and the
+    // filament stay where they are; `G28` homes to the physical origin. The
+    // planner and its bed checks work in physical coordinates.
+    let mut offset = [0.0f64; 4];
     for cmd in &program {
         check_temperature(cmd, file)?;
         check_supported(cmd, file)?;
@@ -78,14 +83,25 @@ pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepS
             out.mix_changes += 1;
             continue;
         }
+        let before = machine.pos;
         if let Some(mv) = machine.apply(cmd) {
             let feed = if mv.feed_mm_s > 0.0 { mv.feed_mm_s } else { DEFAULT_FEED_MM_S };
-            if let Some(b) = planner.move_to(mv.line, mv.from, mv.to, feed)? {
+            let physical = |p: [f64; 4]| [p[0] + offset[0], p[1] + offset[1], p[2] + offset[2], p[3] + offset[3]];
+            if let Some(b) = planner.move_to(mv.line, physical(mv.from), physical(mv.to), feed)? {
                 out.blocks.push(b);
             }
-        } else if cmd.name == "G92" || cmd.name == "G28" {
-            // A new coordinate origin, not a move: no steps.
-            planner.set_position(cmd.line, machine.pos)?;
+        } else if cmd.name == "G92" {
+            for i in 0..4 {
+                offset[i] += before[i] - machine.pos[i];
+            }
+        } else if cmd.name == "G28" {
+            // Homed axes are at the physical origin again (no steps are planned
+            // for homing: the firmware runs it against the end stops).
+            for i in 0..3 {
+                if machine.pos[i] != before[i] || cmd.word(['X', 'Y', 'Z'][i]).is_some() || !['X', 'Y', 'Z'].iter().any(|l| cmd.word(*l).is_some()) {
+                    offset[i] = 0.0;
+                }
+            }
         }
     }
     Ok(out)
@@ -117,14 +133,21 @@ mod tests {
         let text = "G28\nG90\nM82\nG1 X10 Y10 E0.5 F1200\nG1 X20 Y10 E1.0\nG92 E0\nG1 X20 Y20 E0.5\nG92 E0\nG1 X10 Y20 E0.5\n";
         let s = steps_from_gcode(text, "layers.gcode", StepConfig::default()).expect("ok");
         let e: Vec<i64> = s.blocks.iter().map(|b| b.steps[3] + b.steps[4] + b.steps[5]).collect();
-        // 93 steps/mm, positions rounded: 0 → 0.5 mm is 46.5 → 47 steps, 0.5 → 1.0
-        // mm is 93 − 47 = 46; after each G92 E0 the count restarts at 0 (as
-        // firmware re-labels its step counter), so each layer's 0.5 mm is 47 again.
-        assert_eq!(e, [47, 46, 47, 47], "{e:?}");
+        // 93 steps/mm on the physical filament position 0.5, 1.0, 1.5, 2.0 mm:
+        // rounded 47, 93, 140, 186 steps, so the blocks carry 47, 46, 47, 46.
+        assert_eq!(e, [47, 46, 47, 46], "{e:?}");
         // G92 X/Y re-labels the position: no steps for it, later moves count from it.
         let s = steps_from_gcode("G90\nG1 X10 Y10 F1200\nG92 X0 Y0\nG1 X5 Y0\n", "o.gcode", StepConfig::default()).expect("ok");
         assert_eq!(s.blocks.len(), 2);
         assert_eq!(s.blocks[1].steps[..2], [400, 400]);
+        // The bed check is on where the head really is: after G92 X300 at X10,
+        // G1 X0 would drive it to −290 mm.
+        let e = steps_from_gcode("G90\nG1 X10 Y10 F1200\nG92 X300\nG1 X0\n", "o.gcode", StepConfig::default()).expect_err("off bed");
+        assert!(e.to_string().starts_with("o.gcode:4: X: X-290 leaves the bed"), "{e}");
+        let e = steps_from_gcode("G1 Z-5\n", "o.gcode", StepConfig::default()).expect_err("below bed");
+        assert!(e.to_string().starts_with("o.gcode:1: Z: Z-5 goes below the bed"), "{e}");
+        let e = steps_from_gcode("M104 S-50\n", "o.gcode", StepConfig::default()).expect_err("negative temperature");
+        assert!(e.to_string().starts_with("o.gcode:1: S:"), "{e}");
     }
 
     #[test]
@@ -132,7 +155,7 @@ mod tests {
         let e = steps_from_gcode("G1 X10\nG1 X500\n", "a.gcode", StepConfig::default()).expect_err("off bed");
         assert_eq!(e.to_string(), "a.gcode:2: X: X500 leaves the bed (0..=220 mm); refused");
         let e = steps_from_gcode("M104 S400\n", "a.gcode", StepConfig::default()).expect_err("hot");
-        assert!(e.to_string().starts_with("a.gcode:1: S: M104 S400 exceeds"), "{e}");
+        assert!(e.to_string().starts_with("a.gcode:1: S: M104 S400 is outside 0–300 °C"), "{e}");
         let e = steps_from_gcode("M11 F0.8 S0.5\n", "a.gcode", StepConfig::default()).expect_err("ratio");
         assert!(e.to_string().starts_with("a.gcode:1: M11:"), "{e}");
         assert!(steps_from_gcode("M11 S0.5\n", "a.gcode", StepConfig::default()).is_err());

@@ -81,17 +81,6 @@ impl StepPlanner {
         self.mix = mix;
     }
 
-    /// Re-label the current position as `pos` = (x, y, z, e) mm without moving
-    /// (after `G92` or `G28`), so later absolute targets count from it.
-    pub fn set_position(&mut self, line: usize, pos: [f64; 4]) -> Result<(), DatasetError> {
-        let model = |e: fdmlab_models::ModelError| DatasetError::parse(&self.file, line, "position", e.to_string());
-        let [m1, m2] = motor_steps_from_cartesian_mm(pos[0], pos[1], self.cfg.steps_per_mm_xy).map_err(model)?;
-        let z = round_steps(pos[2] * self.cfg.steps_per_mm_z, "Z").map_err(model)?;
-        let e = round_steps(pos[3] * self.cfg.steps_per_mm_e, "E").map_err(model)?;
-        self.pos = [m1, m2, z, e];
-        Ok(())
-    }
-
     /// Steps to move from the current position to `to` = (x, y, z, e) mm at `feed_mm_s`.
     /// `None` when no motor moves.
     pub fn move_to(&mut self, line: usize, from: [f64; 4], to: [f64; 4], feed_mm_s: f64) -> Result<Option<StepBlock>, DatasetError> {
@@ -99,6 +88,9 @@ impl StepPlanner {
             if !(v.is_finite() && (0.0..=bed).contains(&v)) {
                 return Err(DatasetError::parse(&self.file, line, axis, format!("{axis}{v} leaves the bed (0..={bed} mm); refused")));
             }
+        }
+        if !(to[2].is_finite() && to[2] >= 0.0) {
+            return Err(DatasetError::parse(&self.file, line, "Z", format!("Z{} goes below the bed; refused", to[2])));
         }
         let model = |e: fdmlab_models::ModelError| DatasetError::parse(&self.file, line, "move", e.to_string());
         let [m1, m2] = motor_steps_from_cartesian_mm(to[0], to[1], self.cfg.steps_per_mm_xy).map_err(model)?;

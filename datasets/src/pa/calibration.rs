@@ -317,20 +317,22 @@ pub fn write(printer: &Printer, cal: &Calibration) -> Result<CalibrationGcode, D
     check_text("title", &cal.title)?;
     check_text("material", &cal.material)?;
     cal.line.check().map_err(|e| refuse(format!("line pattern: {e}")))?;
-    let positive = [
-        ("bed X", printer.bed_mm[0]),
-        ("bed Y", printer.bed_mm[1]),
-        ("max Z", printer.max_z_mm),
-        ("nozzle", printer.nozzle_mm),
-        ("filament", printer.filament_mm),
-        ("layer", cal.layer_mm),
-        ("spacing", cal.spacing_mm),
-        ("travel speed", cal.travel_mm_s),
-        ("band height", cal.band_mm),
+    // Plausible ranges, not just positive: a 1e-9 mm layer or filament would
+    // put the nozzle on the bed or meter absurd extrusion.
+    let ranges = [
+        ("bed X", printer.bed_mm[0], 10.0, 2000.0),
+        ("bed Y", printer.bed_mm[1], 10.0, 2000.0),
+        ("max Z", printer.max_z_mm, 1.0, 2000.0),
+        ("nozzle", printer.nozzle_mm, 0.1, 2.0),
+        ("filament", printer.filament_mm, 1.0, 3.5),
+        ("layer", cal.layer_mm, 0.02, 2.0),
+        ("spacing", cal.spacing_mm, 0.5, 100.0),
+        ("travel speed", cal.travel_mm_s, 1.0, 1000.0),
+        ("band height", cal.band_mm, 0.1, 100.0),
     ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(refuse(format!("{name} must be a positive number, got {v}")));
+    for (name, v, lo, hi) in ranges {
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(refuse(format!("{name} {v} is outside {lo}–{hi}")));
         }
     }
     if !(cal.retract_mm.is_finite() && (0.0..=10.0).contains(&cal.retract_mm)) {
@@ -362,16 +364,20 @@ pub fn write(printer: &Printer, cal: &Calibration) -> Result<CalibrationGcode, D
     if cal.k_start < k_lo || cal.k_end > k_hi {
         return Err(refuse(format!("K range {}–{} leaves {}'s range {}–{}", cal.k_start, cal.k_end, fw.name(), k_lo, k_hi)));
     }
-    let count = ((cal.k_end - cal.k_start) / cal.k_step + 1e-9).floor() as usize + 1;
-    if count > 200 {
-        return Err(refuse(format!("{count} K values: at most 200")));
+    let count_f = ((cal.k_end - cal.k_start) / cal.k_step + 1e-9).floor() + 1.0;
+    if !(count_f.is_finite() && count_f <= 200.0) {
+        return Err(refuse(format!("{count_f} K values: at most 200")));
     }
+    let count = count_f as usize;
     let decimals = label_decimals(cal.k_step, cal.k_start);
     let ks: Vec<f64> = (0..count).map(|i| {
         let k = cal.k_start + cal.k_step * i as f64;
         let s = 10f64.powi(decimals as i32);
         (k * s).round() / s
     }).collect();
+    if ks.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(refuse(format!("K step {} is finer than the 4 decimals the commands and labels carry", cal.k_step)));
+    }
 
     let width = cal.line_width_mm.unwrap_or(1.2 * printer.nozzle_mm);
     if !(width > 0.0 && width <= 3.0 * printer.nozzle_mm) {

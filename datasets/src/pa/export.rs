@@ -130,13 +130,24 @@ fn temp_range(model: &KaModel, opts: &ExportOptions, material: &str) -> Result<(
     Ok((model.model.x_scale.min[j], model.model.x_scale.max[j]))
 }
 
+/// Material names are written into Klipper macros (Jinja strings), Marlin
+/// `filament_type` conditions and RepRapFirmware paths: letters, digits, space
+/// and `-_.+` only, so a level such as `AB" %}{% set …` cannot change the
+/// program around it.
+fn check_name(field: &str, s: &str) -> Result<(), DatasetError> {
+    if s.trim().is_empty() || !s.chars().all(|c| c.is_alphanumeric() || " -_.+".contains(c)) {
+        return Err(DatasetError::Refused(format!("{field} `{}` may only hold letters, digits, spaces and - _ . + in a firmware export", s.escape_debug())));
+    }
+    Ok(())
+}
+
 fn k_table(model: &KaModel, opts: &ExportOptions) -> Result<KTable, DatasetError> {
     if !(opts.temp_step_c > 0.0) {
         return Err(DatasetError::Refused("temperature step must be positive".into()));
     }
     let mut out = Vec::new();
     for m in materials(model, opts) {
-        check_text("material", &m)?;
+        check_name("material", &m)?;
         let (lo, hi) = temp_range(model, opts, &m)?;
         let n = ((hi - lo) / opts.temp_step_c + 1e-9).floor() as usize;
         let mut temps: Vec<f64> = (0..=n).map(|i| lo + opts.temp_step_c * i as f64).collect();
@@ -497,6 +508,14 @@ mod tests {
             assert!((a - b).abs() < 1e-5, "C {a} vs burn {b}");
         }
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn names_that_would_change_a_macro_are_refused() {
+        assert!(check_name("material", "PETG-CF 2.85+").is_ok());
+        for bad in ["AB\" %}{% set x = 1 %}{\"S", "PLA/../x", "A{B}", "", "a;b"] {
+            assert!(check_name("material", bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -33,14 +33,27 @@ pub struct StepTestGcode {
 
 fn check(g: &StepTestGcode, runs: &[GridRun]) -> Result<(), DatasetError> {
     let [x, y] = g.park_mm;
-    if !(g.bed_mm[0] > 0.0 && g.bed_mm[1] > 0.0 && (0.0..=g.bed_mm[0]).contains(&x) && (0.0..=g.bed_mm[1]).contains(&y)) {
-        return Err(DatasetError::Refused(format!("park position ({x}, {y}) mm is off the {}×{} mm bed", g.bed_mm[0], g.bed_mm[1])));
+    let finite_bed = g.bed_mm.iter().all(|b| b.is_finite() && *b > 0.0 && *b <= 2000.0);
+    if !(finite_bed && (0.0..=g.bed_mm[0]).contains(&x) && (0.0..=g.bed_mm[1]).contains(&y)) {
+        return Err(DatasetError::Refused(format!("park position ({x}, {y}) mm is off the {}×{} mm bed (bed sides 0–2000 mm)", g.bed_mm[0], g.bed_mm[1])));
+    }
+    if !(g.max_z_mm.is_finite() && g.max_z_mm > 0.0 && g.max_z_mm <= 2000.0) {
+        return Err(DatasetError::Refused(format!("max_z_mm {} must be within 0–2000 mm", g.max_z_mm)));
     }
     if !(g.max_hotend_c > 0.0 && g.max_hotend_c <= 500.0) {
         return Err(DatasetError::Refused(format!("max_hotend_c {} must be within 0..500 °C", g.max_hotend_c)));
     }
-    if !(g.hold_s >= 0.0 && g.hold_s <= 3600.0 && g.report_s >= 1 && g.report_s <= 60 && g.min_z_mm >= 0.0 && g.mm_per_height_unit > 0.0) {
-        return Err(DatasetError::Refused("hold_s must be within 0..3600, report_s within 1..60, min_z_mm ≥ 0, mm_per_height_unit > 0".into()));
+    if !(g.start_c.is_finite() && (0.0..g.max_hotend_c).contains(&g.start_c)) {
+        return Err(DatasetError::Refused(format!("start temperature {} °C must be within 0 °C and the limit {} °C", g.start_c, g.max_hotend_c)));
+    }
+    let checks = [
+        ("hold_s", (0.0..=3600.0).contains(&g.hold_s), "within 0–3600 s"),
+        ("report_s", (1..=60).contains(&g.report_s), "within 1–60 s"),
+        ("min_z_mm", g.min_z_mm.is_finite() && g.min_z_mm >= 0.0, "≥ 0 mm"),
+        ("mm_per_height_unit", g.mm_per_height_unit.is_finite() && g.mm_per_height_unit > 0.0, "> 0"),
+    ];
+    if let Some((name, _, rule)) = checks.iter().find(|(_, ok, _)| !ok) {
+        return Err(DatasetError::Refused(format!("{name} must be {rule}")));
     }
     if runs.is_empty() {
         return Err(DatasetError::Refused("no run in the grid".into()));
