@@ -383,6 +383,12 @@ fn design(ss: &StateSpace, poles: &[String], discrete: Option<f64>, method: Opti
         Some(m) => return Err(bad(format!("--method `{m}`: expected ackermann or hessenberg"))),
     };
     let ss = heater_only(ss)?;
+    // The poles as given: z-plane for a discrete model, else s-plane.
+    let z_plane = ss.dt_s.is_some();
+    if let Some(p) = poles.iter().find(|p| if z_plane { p.norm() >= 1.0 } else { p.re >= 0.0 }) {
+        let rule = if z_plane { "|z| < 1 for this discrete model" } else { "Re < 0" };
+        return Err(bad(format!("--poles: {p} is not a stable closed-loop pole ({rule}); a heater loop must settle")));
+    }
     let (plant, poles) = match (discrete, ss.dt_s) {
         (Some(dt), None) => (ss.c2d(dt)?, poles.iter().map(|p| (p * dt).exp()).collect()),
         (Some(_), Some(_)) => return Err(bad("--discrete: the model is already discrete; give its z-plane poles without --discrete")),
@@ -408,7 +414,7 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
     };
     let setup = LoopSetup { target: a.target, duration_s: a.duration, u_min: 0.0, u_max: a.u_max };
     let sf = control::simulate_state_feedback(&plant, &p.l, p.m, &setup)?;
-    let fo = control::fopdt_of(&plant, a.duration.max(600.0) * 4.0)?;
+    let fo = control::fopdt_of(&plant, a.duration.max(600.0) * 4.0).map_err(|e| bad(e.to_string()))?;
     let dt = plant.dt_s.unwrap_or(a.dt);
     let mut pids = Vec::new();
     for pid in [control::simc_pi(&fo, dt), control::imc_pid(&fo, dt)] {
@@ -477,12 +483,12 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
         export::Format::KlipperMpc => export::klipper_mpc(&export::mpc_physics_from_rates(&physics()?, power()?, a.filament_heat)?, &note)?,
         export::Format::Reprap => {
             let rates = physics()?;
-            let fo = control::fopdt_of(&discrete(&ss)?, 4000.0)?;
+            let fo = control::fopdt_of(&discrete(&ss)?, 4000.0).map_err(|e| bad(e.to_string()))?;
             export::reprap(&rates, fo.dead_time_s, &note)?
         }
         export::Format::MarlinPid | export::Format::KlipperPid => {
             let plant = discrete(&ss)?;
-            let fo = control::fopdt_of(&plant, 4000.0)?;
+            let fo = control::fopdt_of(&plant, 4000.0).map_err(|e| bad(e.to_string()))?;
             let pid = control::imc_pid(&fo, plant.dt_s.unwrap_or(1.0));
             if format == export::Format::MarlinPid { export::marlin_pid(&pid, &note)? } else { export::klipper_pid(&pid, &note)? }
         }

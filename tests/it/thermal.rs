@@ -158,3 +158,24 @@ fn gc_refuses_while_a_run_record_is_unreadable() {
     let total = std::fs::read_dir(sb.store().join("objects")).expect("objects").filter_map(|e| e.ok()).map(|d| std::fs::read_dir(d.path()).map(|f| f.count()).unwrap_or(0)).sum::<usize>();
     assert_eq!(Some(total as u64), checked);
 }
+
+#[test]
+fn unsafe_controllers_are_refused() {
+    // An unstable model, a heater with a negative gain and an unstable requested
+    // pole: each is bad input (exit 2), never a controller file.
+    let sb = Sandbox::new();
+    sb.write("unstable.json", r#"{"A":[[0.01]],"B":[0.5],"C":[1],"D":0}"#);
+    sb.write("negative.json", r#"{"A":[[-0.01]],"B":[-0.5],"C":[1],"D":0}"#);
+    sb.write("ok.json", r#"{"A":[[-0.01]],"B":[0.5],"C":[1],"D":0}"#);
+    for (model, format, why) in [("unstable.json", "marlin-pid", "unstable"), ("negative.json", "klipper-pid", "heater gain")] {
+        let out = sb.run(&["export", "thermal", "--model", model, "--format", format, "--out", "pid.cfg"]);
+        assert_eq!(out.status.code(), Some(2), "{model}");
+        assert!(crate::common::stderr(&out).contains(why), "{}", crate::common::stderr(&out));
+        assert!(!sb.path().join("pid.cfg").exists());
+    }
+    let out = sb.run(&["thermal", "place", "--model", "ok.json", "--poles", "0.05"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(crate::common::stderr(&out).contains("not a stable closed-loop pole"), "{}", crate::common::stderr(&out));
+    // The same plant with a stable pole, also through --discrete, is fine.
+    assert!(sb.json(&["thermal", "place", "--model", "ok.json", "--poles", "-0.05", "--discrete", "1"])["L"].is_array());
+}

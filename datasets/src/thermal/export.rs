@@ -75,6 +75,9 @@ pub fn mpc_physics_from_rates(rates: &Rates, heater_power_w: f64, filament_heat_
     if !(heater_power_w.is_finite() && heater_power_w > 0.0 && heater_power_w <= 1000.0) {
         return Err(DatasetError::Refused(format!("heater power {heater_power_w} W must be within 0..1000 W")));
     }
+    if !(filament_heat_capacity_j_k_mm.is_finite() && (0.0..=1.0).contains(&filament_heat_capacity_j_k_mm)) {
+        return Err(DatasetError::Refused(format!("filament heat capacity {filament_heat_capacity_j_k_mm} J/(K·mm) must be within 0..1")));
+    }
     if !(rates.is_physical() && rates.heat_k_s > 0.0) {
         return Err(DatasetError::Refused(format!("identified rates are not physical: {rates:?}")));
     }

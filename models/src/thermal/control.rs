@@ -373,8 +373,21 @@ pub fn fopdt_of(ss: &StateSpace, horizon_s: f64) -> Result<Fopdt, ModelError> {
     let n = ((horizon_s / dt).round() as usize).max(20);
     let mut u = vec![vec![0.0; n]; ss.n_inputs()];
     u[0] = vec![1.0; n];
+    if !ss.is_stable()? {
+        return Err(ModelError::Numerical("the model is unstable (a pole on or outside the unit circle); refusing to tune a controller from it".into()));
+    }
+    let dc = ss.dc_gain()?.first().copied().unwrap_or(f64::NAN);
+    if !(dc.is_finite() && dc > 0.0) {
+        return Err(ModelError::Numerical(format!("the model's heater gain is {dc} °C per unit duty; a heater must raise the temperature, so refusing to tune a controller from it")));
+    }
     let y = ss.simulate(&u, &vec![0.0; ss.order()], 0)?;
-    fopdt::fit(&[Series { y, u: vec![vec![1.0; n]] }], dt, horizon_s / 4.0)
+    let p = fopdt::fit(&[Series { y, u: vec![vec![1.0; n]] }], dt, horizon_s / 4.0)?;
+    // A heater raises the temperature: a zero or negative gain means the model
+    // (or its input sign) is wrong, and a PID tuned from it would run away.
+    if !(p.gain_c.is_finite() && p.gain_c > 0.0 && p.tau_s.is_finite() && p.tau_s > 0.0) {
+        return Err(ModelError::Numerical(format!("the model's step response has gain {} °C and time constant {} s; a heater needs both positive", p.gain_c, p.tau_s)));
+    }
+    Ok(p)
 }
 
 /// SIMC PI rule with τc = θ (Skogestad 2003, eqs. 21–22):

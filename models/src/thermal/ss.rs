@@ -138,6 +138,15 @@ impl StateSpace {
         eigenvalues(&self.a)
     }
 
+    /// True when every pole is strictly stable (|z| < 1 discrete, Re s < 0 continuous).
+    pub fn is_stable(&self) -> Result<bool, ModelError> {
+        let poles = self.poles()?;
+        Ok(match self.dt_s {
+            Some(_) => poles.iter().all(|z| z.norm() < 1.0),
+            None => poles.iter().all(|s| s.re < 0.0),
+        })
+    }
+
     /// Steady-state gain from each input to the output.
     pub fn dc_gain(&self) -> Result<Vec<f64>, ModelError> {
         let n = self.order();
