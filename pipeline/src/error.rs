@@ -30,7 +30,10 @@ pub enum Error {
 fn located(file: &str, line: usize, column: usize, key: &str, message: &str) -> String {
     let mut s = file.to_string();
     if line > 0 {
-        s += &format!(":{line}:{column}");
+        s += &format!(":{line}");
+        if column > 0 {
+            s += &format!(":{column}");
+        }
     }
     if !key.is_empty() {
         s += &format!(": `{key}`");

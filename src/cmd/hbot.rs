@@ -11,7 +11,7 @@ use fdmlab_models::hbot::{HbotParams, LinearMove, Param, StepperDrive, Twin};
 use fdmlab_pipeline::stage::Artifact;
 use fdmlab_pipeline::Error;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// `fdmlab hbot …`
@@ -143,9 +143,6 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
 
-fn read_text(path: &Path) -> anyhow::Result<String> {
-    std::fs::read_to_string(path).map_err(|e| Error::io(path, e).into())
-}
 
 /// Parameters from the chosen set plus `--set` overrides.
 fn params_from(set: ParamSet, overrides: &[String]) -> anyhow::Result<HbotParams> {
@@ -227,7 +224,7 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn steps_cmd(a: StepsArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let text = read_text(&a.file)?;
+    let text = super::read_input_text(&a.file)?;
     let file = a.file.display().to_string();
     let cfg = steps::StepConfig { steps_per_mm_xy: a.steps_per_mm_xy, steps_per_mm_z: a.steps_per_mm_z, steps_per_mm_e: a.steps_per_mm_e, bed_mm: [a.bed_mm[0], a.bed_mm[1]] };
     let stream = gcode_steps::steps_from_gcode(&text, &file, cfg)?;
@@ -282,7 +279,7 @@ fn array(a: ArrayArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn analyze_cmd(a: AnalyzeArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let text = read_text(&a.file)?;
+    let text = super::read_input_text(&a.file)?;
     let table = taguchi_csv::parse(&text, &a.file.display().to_string(), &a.response)?;
     let sense = if a.larger_better { Sense::LargerBetter } else { Sense::SmallerBetter };
     let an = analyze(&table.factors, &table.levels, &table.response, sense).map_err(|e| bad(format!("{}: {e}", a.file.display())))?;

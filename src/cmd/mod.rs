@@ -46,6 +46,21 @@ impl Ctx {
 }
 
 /// Exit code of an error: 2 when the input is at fault, else 1.
+/// Read an input file the user named: a missing or unreadable file is bad
+/// input (exit 2), and bytes that are not UTF-8 are located by line.
+pub fn read_input(path: &std::path::Path) -> anyhow::Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| fdmlab_pipeline::Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: e.to_string() }.into())
+}
+
+/// [`read_input`] as text.
+pub fn read_input_text(path: &std::path::Path) -> anyhow::Result<String> {
+    let bytes = read_input(path)?;
+    String::from_utf8(bytes).map_err(|e| {
+        let line = e.as_bytes()[..e.utf8_error().valid_up_to()].iter().filter(|b| **b == b'\n').count() + 1;
+        fdmlab_pipeline::Error::Input { file: path.display().to_string(), line, column: 0, key: "text".into(), message: "not valid UTF-8".into() }.into()
+    })
+}
+
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     for cause in e.chain() {
         if let Some(p) = cause.downcast_ref::<fdmlab_pipeline::Error>() {

@@ -269,9 +269,6 @@ pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
     Ok((model, hash))
 }
 
-fn read(path: &Path) -> anyhow::Result<Vec<u8>> {
-    std::fs::read(path).map_err(|e| Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: e.to_string() }.into())
-}
 
 /// `fdmlab ka …`
 pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
@@ -289,9 +286,9 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             Ok(())
         }
         KaCommand::Scores { manifest, scores: file, scale } => {
-            let mb = read(&manifest)?;
+            let mb = super::read_input(&manifest)?;
             let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
-            let s = scores::ingest(&read(&file)?, &file.display().to_string(), &m, scale)?;
+            let s = scores::ingest(&super::read_input(&file)?, &file.display().to_string(), &m, scale)?;
             let value = serde_json::json!({"best_k": s.best.k, "best_k_sd": s.best.k_sd, "best_line": s.best.best_line + 1, "window": s.best.window, "raters": s.raters, "rows": s.rows, "kendall_w": s.kendall_w, "kendall_lines": s.kendall_lines});
             ctx.emit(&value, || {
                 format!(
@@ -308,7 +305,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             Ok(())
         }
         KaCommand::SimulateScores { manifest, k_true, raters, seed, output } => {
-            let mb = read(&manifest)?;
+            let mb = super::read_input(&manifest)?;
             let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
             if !(k_true > 0.0 && k_true <= 10.0) || raters == 0 || raters > 50 {
                 return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
@@ -324,7 +321,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         }
         KaCommand::Train(a) => {
             let t0 = Instant::now();
-            let bytes = read(&a.data)?;
+            let bytes = super::read_input(&a.data)?;
             let t = table::load(&bytes, &a.data.display().to_string(), &a.target, a.features.as_deref())?;
             let settings = MlpSettings { hidden: parse_hidden(&a.hidden)?, train: TrainConfig { epochs: a.epochs, batch_size: a.batch, learning_rate: a.lr, seed: a.seed } };
             settings.train.check()?;

@@ -235,9 +235,6 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
 
-fn read_text(path: &Path) -> anyhow::Result<String> {
-    std::fs::read_to_string(path).map_err(|e| Error::Io { path: path.display().to_string(), source: e }.into())
-}
 
 /// Parse every log; returns the experiments and each file's (name, text) for
 /// [`store_inputs`] once the store is open (bad input writes nothing).
@@ -245,7 +242,7 @@ fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Exper
     let mut exps = Vec::new();
     let mut files = Vec::new();
     for p in paths {
-        let text = read_text(p)?;
+        let text = super::read_input_text(p)?;
         let name = p.display().to_string();
         let (e, notes) = tlog::read_log(&text, &name, opts)?;
         for n in notes {
@@ -345,7 +342,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
 /// Load a model: a file path, else a store hash/prefix.
 fn load_model(arg: &str, ctx: &Ctx) -> anyhow::Result<(StateSpace, Option<ThermalModel>, String)> {
     let (text, name) = if Path::new(arg).exists() {
-        (read_text(Path::new(arg))?, arg.to_string())
+        (super::read_input_text(Path::new(arg))?, arg.to_string())
     } else {
         let store = ctx.store()?;
         let hash = store.resolve(arg)?;

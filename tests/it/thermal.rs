@@ -179,3 +179,15 @@ fn unsafe_controllers_are_refused() {
     // The same plant with a stable pole, also through --discrete, is fine.
     assert!(sb.json(&["thermal", "place", "--model", "ok.json", "--poles", "-0.05", "--discrete", "1"])["L"].is_array());
 }
+
+#[test]
+fn unreadable_inputs_are_bad_input_with_a_location() {
+    let sb = Sandbox::new();
+    std::fs::write(sb.path().join("latin1.csv"), b"time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,25\n1,0.5,0,\xb0C\n").expect("write");
+    for args in [&["thermal", "identify", "missing.csv"][..], &["thermal", "identify", "latin1.csv"], &["hbot", "steps", "missing.gcode"], &["taguchi", "analyze", "latin1.csv"]] {
+        let out = sb.run(args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", crate::common::stderr(&out));
+    }
+    let out = sb.run(&["thermal", "identify", "latin1.csv"]);
+    assert!(crate::common::stderr(&out).contains("latin1.csv:3: `text`: not valid UTF-8"), "{}", crate::common::stderr(&out));
+}

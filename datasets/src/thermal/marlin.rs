@@ -48,8 +48,8 @@ fn timestamp_s(s: &str) -> Option<(i64, f64)> {
     let (y, mo, da) = (d.next()??, d.next()??, d.next()??);
     let time = time.replace(',', ".");
     let mut t = time.split(':');
-    let (h, mi) = (t.next()?.parse::<f64>().ok()?, t.next()?.parse::<f64>().ok()?);
-    let sec = t.next()?.parse::<f64>().ok()?;
+    let mut num = || t.next()?.parse::<f64>().ok().filter(|v| v.is_finite() && *v >= 0.0);
+    let (h, mi, sec) = (num()?, num()?, num()?);
     // Days from civil (Hinnant 2013, `days_from_civil`).
     let y2 = if mo <= 2 { y - 1 } else { y };
     let era = y2.div_euclid(400);
@@ -118,7 +118,7 @@ pub fn parse(text: &str, file: &str, opts: &MarlinOptions) -> Result<RawLog, Dat
                         Some(c) if c == "M106" => {
                             let s = cmd.iter().find(|w| w.starts_with('S')).map(|w| w[1..].split('*').next().unwrap_or("").to_string());
                             let v = match s {
-                                Some(s) => s.parse::<f64>().map_err(|_| DatasetError::parse(file, row, "M106 S", format!("`{s}` is not a number")))?,
+                                Some(s) => s.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| DatasetError::parse(file, row, "M106 S", format!("`{s}` is not a number")))?,
                                 None => 255.0,
                             };
                             fan = (v / 255.0).clamp(0.0, 1.0);
