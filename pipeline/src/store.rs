@@ -275,8 +275,42 @@ impl Store {
 /// file is staged in the target's own folder, so the rename never crosses file
 /// systems and a failure never leaves a partial file.
 pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    write_atomic_via(dir, path, bytes)
+    write_files_atomic(&[(path, bytes)])
+}
+
+/// Several output files written as one (G-code and its manifest, a grid of
+/// CSVs): every file is staged and synced first, and none is renamed into
+/// place unless all staged and no target is a folder.
+pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
+    let mut staged: Vec<(PathBuf, &Path)> = Vec::new();
+    let discard = |staged: &[(PathBuf, &Path)]| staged.iter().for_each(|(t, _)| drop(fs::remove_file(t)));
+    for (path, bytes) in files {
+        if path.is_dir() {
+            discard(&staged);
+            return Err(Error::io(path, std::io::Error::other("is a folder, not a file")));
+        }
+        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let tmp = dir.join(unique_name(".fdmlab-w"));
+        let written = fs::create_dir_all(dir).and_then(|_| {
+            let mut f = fs::File::create(&tmp)?;
+            f.write_all(bytes)?;
+            f.sync_all()
+        });
+        if let Err(e) = written {
+            let _ = fs::remove_file(&tmp);
+            discard(&staged);
+            return Err(Error::io(path, e));
+        }
+        staged.push((tmp, path));
+    }
+    test_pause();
+    for (i, (tmp, path)) in staged.iter().enumerate() {
+        if let Err(e) = fs::rename(tmp, path) {
+            discard(&staged[i..]);
+            return Err(Error::io(path, e));
+        }
+    }
+    Ok(())
 }
 
 /// Atomic write of `bytes` to `path`, staging the temp file in `tmp_dir`

@@ -1,7 +1,7 @@
 //! Pressure advance: `fdmlab gcode pa`, `fdmlab ka grid|scores|train|predict`,
 //! `fdmlab export ka`, `fdmlab bench pa`.
 
-use fdmlab_pipeline::store::write_file_atomic;
+use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
 use super::Ctx;
 use anyhow::Context as _;
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
@@ -141,9 +141,8 @@ pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let (printer, cal) = a.to_request()?;
             let g = calibration::write(&printer, &cal)?;
             let manifest = serde_json::to_vec_pretty(&g.manifest)?;
-            write_file_atomic(&a.output, g.text.as_bytes())?;
             let mpath = manifest_path(&a.output);
-            write_file_atomic(&mpath, &manifest)?;
+            write_files_atomic(&[(&a.output, g.text.as_bytes()), (&mpath, &manifest)])?;
             let value = serde_json::json!({
                 "gcode": a.output.display().to_string(),
                 "manifest": mpath.display().to_string(),
@@ -276,10 +275,12 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         KaCommand::Grid { output, seed, truth } => {
             let cfg = GridConfig { seed, ..GridConfig::default() };
             let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
-            write_file_atomic(&output, grid::grid_csv(&rows).as_bytes())?;
-            if let Some(t) = &truth {
-                write_file_atomic(t, grid::truth_csv(&rows).as_bytes())?;
+            let (grid_csv, truth_csv) = (grid::grid_csv(&rows), truth.as_ref().map(|_| grid::truth_csv(&rows)));
+            let mut files: Vec<(&std::path::Path, &[u8])> = vec![(&output, grid_csv.as_bytes())];
+            if let (Some(t), Some(csv)) = (&truth, &truth_csv) {
+                files.push((t, csv.as_bytes()));
             }
+            write_files_atomic(&files)?;
             let max_dev = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
             let value = serde_json::json!({"rows": rows.len(), "seed": seed, "output": output.display().to_string(), "max_measurement_error": max_dev});
             ctx.emit(&value, || format!("wrote {} grid rows (seed {seed}) to {}; largest |K_A − K_true| = {max_dev:.4} s\n", rows.len(), output.display()));

@@ -426,14 +426,15 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let twin = Twin::default();
-    let mut written = Vec::new();
+    let mut files = Vec::new();
     for runs in [twin::identification_grid(), twin::verification_grid()] {
         for e in twin.grid(&runs, &StepTest::default(), a.seed)? {
-            let path = a.out_dir.join(format!("{}.csv", e.name));
-            write_file_atomic(&path, tlog::csv::write(&e).as_bytes())?;
-            written.push(path.display().to_string());
+            files.push((a.out_dir.join(format!("{}.csv", e.name)), tlog::csv::write(&e)));
         }
     }
+    // All of the grid or none of it.
+    fdmlab_pipeline::store::write_files_atomic(&files.iter().map(|(p, t)| (p.as_path(), t.as_bytes())).collect::<Vec<_>>())?;
+    let written: Vec<String> = files.iter().map(|(p, _)| p.display().to_string()).collect();
     let value = json!({"files": written, "seed": a.seed, "twin": twin});
     ctx.emit(&value, || written.join("\n"));
     Ok(())

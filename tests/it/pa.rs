@@ -17,6 +17,10 @@ fn gcode_pa_writes_gcode_and_manifest_and_refuses_bad_input() {
         (vec!["--hotend", "300"], "hotend"),
         (vec!["--firmware", "marlin", "--k-end", "12", "--k-step", "1"], "range"),
         (vec!["--title", "x\nG1 Z-10"], "inject"),
+        (vec!["--layer", "1e-9"], "layer"),
+        (vec!["--filament", "1e-9"], "filament"),
+        (vec!["--k-step", "1e-300"], "K values"),
+        (vec!["--firmware", "klipper", "--k-start", "0", "--k-end", "0.00003", "--k-step", "0.00001"], "decimals"),
     ] {
         let mut a = vec!["gcode", "pa", "-o", "bad.gcode"];
         a.extend(args.iter().copied());
@@ -25,6 +29,11 @@ fn gcode_pa_writes_gcode_and_manifest_and_refuses_bad_input() {
         assert!(stderr(&out).contains(why), "{a:?}: {}", stderr(&out));
         assert!(!sb.path().join("bad.gcode").exists() && !sb.path().join("bad.gcode.json").exists());
     }
+    // The G-code and its manifest land together or not at all.
+    std::fs::create_dir(sb.path().join("both.gcode.json")).expect("a folder in the manifest's place");
+    let out = sb.run(&["gcode", "pa", "-o", "both.gcode"]);
+    assert!(!out.status.success());
+    assert!(!sb.path().join("both.gcode").exists(), "{}", stderr(&out));
 }
 
 #[test]
