@@ -81,6 +81,14 @@ fn train_predict_export_on_a_small_table() {
     assert_eq!(out.status.code(), Some(2));
     let out = sb.run(&["ka", "predict", "--model", &run, "--set", "material=PLA"]);
     assert_eq!(out.status.code(), Some(2));
+    // Outside the trained ranges (210–240 °C here) or not a number: refused, not a guess.
+    for set in ["material=PLA,hotend_c=1000,layer_mm=0.2", "material=PLA,hotend_c=nan,layer_mm=0.2"] {
+        let out = sb.run(&["ka", "predict", "--model", &run, "--set", set]);
+        assert_eq!(out.status.code(), Some(2), "{set}");
+        assert!(stderr(&out).contains("hotend_c"), "{set}: {}", stderr(&out));
+    }
+    let out = sb.run(&["export", "ka", "--model", &run, "--format", "marlin", "--set", "layer_mm=50"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     for f in ["marlin", "klipper", "reprap", "orca", "c-header", "json"] {
         let out = sb.ok(&["export", "ka", "--model", &run, "--format", f, "--set", "layer_mm=0.2"]);
         assert!(!out.is_empty(), "{f}");

@@ -66,6 +66,16 @@ impl KaModel {
     /// Predict K_A for one query `column → value`.
     pub fn predict(&self, values: &BTreeMap<String, String>) -> Result<f64, DatasetError> {
         let x = self.encoding.encode(values)?;
+        // The network is only trusted inside the ranges it was trained on.
+        for f in &self.encoding.features {
+            let super::table::Feature::Numeric { name } = f else { continue };
+            let Some(j) = self.model.feature_names.iter().position(|n| n == name) else { continue };
+            let (v, lo, hi) = (x[j], self.model.x_scale.min[j], self.model.x_scale.max[j]);
+            let tol = 1e-9 * (hi - lo).abs().max(1.0);
+            if !(v.is_finite() && v >= lo - tol && v <= hi + tol) {
+                return Err(DatasetError::Refused(format!("{name} = {v} is outside the training range {lo}–{hi}; the model does not extrapolate")));
+            }
+        }
         let p = self.model.predict(&x)?;
         p.first().copied().ok_or_else(|| DatasetError::Refused("no prediction".into()))
     }
