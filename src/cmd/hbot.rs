@@ -263,6 +263,13 @@ fn array(a: ArrayArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if names.len() != n {
         return Err(bad(format!("--names gives {} names for {} factors", names.len(), n)));
     }
+    // The names head the results template that `taguchi analyze` reads back.
+    for (i, name) in names.iter().enumerate() {
+        let reserved = name.eq_ignore_ascii_case("run") || name == "s";
+        if name.trim().is_empty() || reserved || names[..i].contains(name) || !name.chars().all(|c| c.is_alphanumeric() || "_-.".contains(c)) {
+            return Err(bad(format!("--names: `{}` must be unique, not `run` or `s`, and only letters, digits and _ - .", name.escape_debug())));
+        }
+    }
     let rows = oa.select(&columns)?;
     if let Some(path) = &a.csv {
         write_file_atomic(path, taguchi_csv::template(&names, &rows, "s").as_bytes())?;
@@ -281,6 +288,7 @@ fn array(a: ArrayArgs, ctx: &Ctx) -> anyhow::Result<()> {
 fn analyze_cmd(a: AnalyzeArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let text = super::read_input_text(&a.file)?;
     let table = taguchi_csv::parse(&text, &a.file.display().to_string(), &a.response)?;
+    table.check_balanced(&a.file.display().to_string())?;
     let sense = if a.larger_better { Sense::LargerBetter } else { Sense::SmallerBetter };
     let an = analyze(&table.factors, &table.levels, &table.response, sense).map_err(|e| bad(format!("{}: {e}", a.file.display())))?;
     let factors: Vec<serde_json::Value> = an.factors.iter().map(|f| serde_json::json!({ "name": f.name, "level_means": f.level_means, "range": f.range, "rank": f.rank })).collect();

@@ -15,6 +15,12 @@ fn taguchi_array_l27_five_factors() {
     assert_eq!(v["rows"][26], serde_json::json!([3, 3, 3, 1, 3]));
     let out = sb.run(&["taguchi", "array", "L12"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    // Names that would break the template `taguchi analyze` reads back.
+    for names in ["a,a,c", "run,b,c", "a,s,c", "a,b c,d"] {
+        let out = sb.run(&["taguchi", "array", "L9", "--factors", "3", "--names", names, "--csv", "t.csv"]);
+        assert_eq!(out.status.code(), Some(2), "{names}: {}", stderr(&out));
+        assert!(!sb.path().join("t.csv").exists());
+    }
 }
 
 /// Yang & El-Haik (2003), Design for Six Sigma §13.4: L9, A/B/C on columns 1/2/4,

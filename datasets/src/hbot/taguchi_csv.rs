@@ -18,6 +18,7 @@ pub struct TaguchiTable {
 
 /// Parse `text` (from `file`, for messages) with the response in column `response`.
 pub fn parse(text: &str, file: &str, response: &str) -> Result<TaguchiTable, DatasetError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end_matches('\r'))).filter(|(_, l)| !l.trim().is_empty());
     let (hline, header) = lines.next().ok_or_else(|| DatasetError::parse(file, 1, "header", "empty file: expected a header row"))?;
     let names: Vec<String> = header.split(',').map(|h| h.trim().to_string()).collect();
@@ -47,8 +48,9 @@ pub fn parse(text: &str, file: &str, response: &str) -> Result<TaguchiTable, Dat
             return Err(DatasetError::parse(file, line, "row", format!("{} fields for {} columns", fields.len(), names.len())));
         }
         let y: f64 = fields[resp_col].parse().map_err(|_| DatasetError::parse(file, line, response, format!("`{}` is not a number", fields[resp_col])))?;
-        if !y.is_finite() {
-            return Err(DatasetError::parse(file, line, response, "response must be finite"));
+        // Sums of squares of the responses must stay finite too.
+        if !(y.is_finite() && y.abs() <= 1e150) {
+            return Err(DatasetError::parse(file, line, response, "response must be a finite number within ±1e150"));
         }
         let mut lv = Vec::with_capacity(factor_cols.len());
         for &c in &factor_cols {
@@ -64,6 +66,24 @@ pub fn parse(text: &str, file: &str, response: &str) -> Result<TaguchiTable, Dat
         return Err(DatasetError::parse(file, hline, "rows", "need at least two runs"));
     }
     Ok(table)
+}
+
+impl TaguchiTable {
+    /// Level means are only comparable when every level of a factor is run
+    /// equally often (an orthogonal array); a repeated or missing row breaks it.
+    pub fn check_balanced(&self, file: &str) -> Result<(), DatasetError> {
+        for (f, name) in self.factors.iter().enumerate() {
+            let mut counts = [0usize; MAX_LEVEL as usize];
+            for lv in &self.levels {
+                counts[usize::from(lv[f]) - 1] += 1;
+            }
+            let used: Vec<usize> = counts.iter().copied().filter(|&c| c > 0).collect();
+            if used.iter().any(|&c| c != used[0]) {
+                return Err(DatasetError::parse(file, 1, name, format!("levels are not balanced (runs per level {counts:?}): a run is repeated or missing")));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// CSV of an array with factor names and an empty response column to fill in.
@@ -96,6 +116,12 @@ mod tests {
         assert!(parse("A,s\n1,0.5,3\n2,1\n", "r.csv", "s").is_err());
         assert!(parse("", "r.csv", "s").is_err());
         assert!(parse("A,A,s\n1,1,2\n2,2,3\n", "r.csv", "s").is_err());
+        // A BOM is not part of the first column's name.
+        assert_eq!(parse("\u{feff}A,s\n1,0.5\n2,1\n", "r.csv", "s").expect("bom").factors, ["A"]);
+        let e = parse("A,s\n1,1e308\n2,1\n", "r.csv", "s").expect_err("huge");
+        assert!(e.to_string().starts_with("r.csv:2: s: response must be"), "{e}");
+        let t = parse("A,B,s\n1,1,1\n2,2,2\n3,3,3\n3,3,3\n", "r.csv", "s").expect("parses");
+        assert!(t.check_balanced("r.csv").expect_err("repeated run").to_string().contains("not balanced"));
     }
 
     #[test]
