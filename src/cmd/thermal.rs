@@ -289,6 +289,10 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let t = Instant::now();
     let result = ident::identify(&exps, &opts)?;
     let wall = t.elapsed().as_secs_f64();
+    if result.models.is_empty() {
+        let why: Vec<String> = result.failures.iter().take(3).map(|f| format!("{}-{}: {}", f.family.name(), f.order, f.reason)).collect();
+        anyhow::bail!("no model could be identified ({} failures; first: {})", result.failures.len(), why.join("; "));
+    }
     let store = ctx.store()?;
     let mut inputs = store_inputs(&store, &log_files)?;
     let mut artifacts = Vec::new();
