@@ -30,6 +30,9 @@ pub struct PrintScores {
 /// Any bad row fails the whole file with its line number and column.
 pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> Result<PrintScores, DatasetError> {
     let t = super::csv::read_strings(bytes, file)?;
+    if t.find("line").is_some() && t.find("band").is_some() {
+        return Err(DatasetError::parse(file, 1, "band", "give `line` or `band`, not both"));
+    }
     let line_col = t.find("line").or_else(|| t.find("band")).ok_or_else(|| DatasetError::parse(file, 1, "line", "missing column `line` (or `band`)"))?;
     let line_name = t.columns[line_col].clone();
     let score_col = t.find("score").ok_or_else(|| DatasetError::parse(file, 1, "score", "missing column `score`"))?;
@@ -93,7 +96,7 @@ pub fn to_csv(table: &ScoreTable, raters: &[String], manifest: &Manifest) -> Str
     for (g, row) in table.scores.iter().enumerate() {
         for (ri, v) in row.iter().enumerate() {
             if let (Some(v), Some(name), Some(region)) = (v, raters.get(ri), manifest.regions.get(g)) {
-                s.push_str(&format!("{},{},{},{}\n", region.index, region.label, name, v));
+                s.push_str(&format!("{},{},{},{}\n", region.index, region.k, name, v));
             }
         }
     }
@@ -152,6 +155,7 @@ mod tests {
             ("line,score,rater,k\n1,5,a,0\n2,5,a,nan\n", 3, "k"),
             ("line,score\n1,5\n", 1, "rater"),
             ("band,score,rater\n1,5,\n", 2, "rater"),
+            ("line,band,score,rater\n1,1,5,a\n", 1, "band"),
         ];
         for (csv, row, field) in cases {
             match ingest(csv.as_bytes(), "s.csv", &m, 10.0) {
