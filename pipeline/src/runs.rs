@@ -104,13 +104,26 @@ pub fn write_record(store: &Store, record: &RunRecord) -> Result<()> {
 pub struct RunScan {
     /// Readable run records, oldest first.
     pub runs: Vec<RunRecord>,
-    /// Records that exist but cannot be read (`path: reason`).
-    pub bad: Vec<String>,
-    /// Run ids (folder names) of those records.
-    pub bad_ids: Vec<String>,
+    /// Records that exist but cannot be read, by message.
+    pub bad: Vec<Unreadable>,
     /// Run folders without a record yet (a run in flight, or one killed) and
     /// when each was created.
     pub unfinished: Vec<(PathBuf, SystemTime)>,
+}
+
+/// A run record (or the `runs/` folder) that cannot be read.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Unreadable {
+    /// `path: reason`.
+    pub message: String,
+    /// The run id (folder name); empty when the folder itself failed.
+    pub id: String,
+}
+
+impl std::fmt::Display for Unreadable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
 }
 
 /// Read every run folder.
@@ -121,7 +134,7 @@ pub fn scan(store: &Store) -> RunScan {
         Ok(entries) => entries,
         Err(e) if e.kind() == ErrorKind::NotFound => return out,
         Err(e) => {
-            out.bad.push(format!("{}: {e}", dir.display()));
+            out.bad.push(Unreadable { message: format!("{}: {e}", dir.display()), id: String::new() });
             return out;
         }
     };
@@ -129,27 +142,22 @@ pub fn scan(store: &Store) -> RunScan {
         let path = match entry {
             Ok(entry) => entry.path(),
             Err(e) => {
-                out.bad.push(format!("{}: {e}", dir.display()));
+                out.bad.push(Unreadable { message: format!("{}: {e}", dir.display()), id: String::new() });
                 continue;
             }
         };
         let record = path.join("run.json");
+        let unreadable = |e: &dyn std::fmt::Display| Unreadable { message: format!("{}: {e}", record.display()), id: path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default() };
         match fs::read(&record) {
             Ok(bytes) => match serde_json::from_slice::<RunRecord>(&bytes) {
                 Ok(r) => out.runs.push(r),
-                Err(e) => {
-                    out.bad.push(format!("{}: {e}", record.display()));
-                    out.bad_ids.push(path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default());
-                }
+                Err(e) => out.bad.push(unreadable(&e)),
             },
             Err(e) if e.kind() == ErrorKind::NotFound => {
                 let created = fs::metadata(&path).and_then(|m| m.modified()).unwrap_or_else(|_| SystemTime::now());
                 out.unfinished.push((path, created));
             }
-            Err(e) => {
-                out.bad.push(format!("{}: {e}", record.display()));
-                out.bad_ids.push(path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default());
-            }
+            Err(e) => out.bad.push(unreadable(&e)),
         }
     }
     out.runs.sort_by(|a, b| a.id.cmp(&b.id));
@@ -177,18 +185,18 @@ pub fn find(store: &Store, id: &str) -> Result<RunRecord> {
 /// caller can try the id as something else (a blob hash). A match that is
 /// ambiguous or whose record cannot be read is an error.
 pub fn find_opt(store: &Store, id: &str) -> Result<Option<RunRecord>> {
-    let RunScan { runs, bad, bad_ids, .. } = scan(store);
-    let unreadable = |i: usize| Error::Store(format!("run record {}", bad[i]));
+    let RunScan { runs, bad, .. } = scan(store);
+    let unreadable = |u: &Unreadable| Error::Store(format!("run record {u}"));
     if id == "latest" {
-        let newest_bad = bad_ids.iter().enumerate().max_by(|a, b| a.1.cmp(b.1));
+        let newest_bad = bad.iter().max_by(|a, b| a.id.cmp(&b.id));
         return match (runs.into_iter().last(), newest_bad) {
-            (Some(r), Some((i, b))) if *b > r.id => Err(unreadable(i)),
-            (None, Some((i, _))) => Err(unreadable(i)),
+            (Some(r), Some(u)) if u.id > r.id => Err(unreadable(u)),
+            (None, Some(u)) => Err(unreadable(u)),
             (r, _) => r.map(Some).ok_or_else(|| Error::bad_input("the store has no run yet")),
         };
     }
-    if let Some(i) = bad_ids.iter().position(|b| b.starts_with(id)) {
-        return Err(unreadable(i));
+    if let Some(u) = bad.iter().find(|u| !u.id.is_empty() && u.id.starts_with(id)) {
+        return Err(unreadable(u));
     }
     let mut matches: Vec<RunRecord> = runs.into_iter().filter(|r| r.id.starts_with(id)).collect();
     match (matches.pop(), matches.len()) {
@@ -260,7 +268,7 @@ pub(crate) fn referenced_by_runs(scan: &RunScan) -> Result<References> {
 /// What run records and stage records reference (used by `verify`).
 pub(crate) fn referenced(store: &Store) -> References {
     let RunScan { runs, bad, .. } = scan(store);
-    let mut refs = References { bad_records: bad, ..References::default() };
+    let mut refs = References { bad_records: bad.into_iter().map(|u| u.message).collect(), ..References::default() };
     for r in runs {
         refs.blobs.extend(r.blobs().cloned());
     }
