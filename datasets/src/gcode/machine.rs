@@ -54,6 +54,13 @@ impl Default for Machine {
 }
 
 impl Machine {
+    /// Which of X, Y, Z a `G28` homes: the axes it names, or all when it names none.
+    pub fn homed_axes(cmd: &Command) -> [bool; 3] {
+        let named = ['X', 'Y', 'Z'].map(|l| cmd.word(l).is_some());
+        let all = !named.contains(&true);
+        named.map(|n| all || n)
+    }
+
     /// Apply one command; returns the move it makes, if any.
     pub fn apply(&mut self, cmd: &Command) -> Option<Move> {
         match cmd.name.as_str() {
@@ -62,9 +69,8 @@ impl Machine {
             "M82" => self.absolute_e = true,
             "M83" => self.absolute_e = false,
             "G28" => {
-                let any = ['X', 'Y', 'Z'].iter().any(|l| cmd.word(*l).is_some());
-                for (i, l) in ['X', 'Y', 'Z'].iter().enumerate() {
-                    if !any || cmd.word(*l).is_some() {
+                for (i, homed) in Self::homed_axes(cmd).into_iter().enumerate() {
+                    if homed {
                         self.pos[i] = 0.0;
                     }
                 }

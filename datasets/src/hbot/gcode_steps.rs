@@ -97,8 +97,8 @@ pub fn steps_from_gcode(text: &str, file: &str, cfg: StepConfig) -> Result<StepS
         } else if cmd.name == "G28" {
             // Homed axes are at the physical origin again (no steps are planned
             // for homing: the firmware runs it against the end stops).
-            for i in 0..3 {
-                if machine.pos[i] != before[i] || cmd.word(['X', 'Y', 'Z'][i]).is_some() || !['X', 'Y', 'Z'].iter().any(|l| cmd.word(*l).is_some()) {
+            for (i, homed) in Machine::homed_axes(cmd).into_iter().enumerate() {
+                if homed {
                     offset[i] = 0.0;
                 }
             }

@@ -7,7 +7,7 @@
 //! regression rows never straddle two experiments.
 
 use super::linreg;
-use super::ss::{eigenvalues, StateSpace};
+use super::ss::{eigenvalues, inside_unit_circle, StateSpace};
 use crate::ModelError;
 use nalgebra::{DMatrix, DVector};
 
@@ -57,7 +57,7 @@ impl Polynomials {
         }
         let n = self.a.len();
         let comp = DMatrix::from_fn(n, n, |i, j| if i == 0 { -self.a[j] } else if i == j + 1 { 1.0 } else { 0.0 });
-        eigenvalues(&comp).map(|p| p.iter().all(|z| z.norm() < 1.0)).unwrap_or(false)
+        eigenvalues(&comp).map(|p| inside_unit_circle(&p)).unwrap_or(false)
     }
 }
 

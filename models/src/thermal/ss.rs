@@ -142,7 +142,7 @@ impl StateSpace {
     pub fn is_stable(&self) -> Result<bool, ModelError> {
         let poles = self.poles()?;
         Ok(match self.dt_s {
-            Some(_) => poles.iter().all(|z| z.norm() < 1.0),
+            Some(_) => inside_unit_circle(&poles),
             None => poles.iter().all(|s| s.re < 0.0),
         })
     }
@@ -220,6 +220,11 @@ impl StateSpace {
         let bu = &self.b * DVector::from_column_slice(u);
         m.lu().solve(&bu).ok_or_else(|| ModelError::Numerical("no equilibrium: A has a pole at the integrator".into()))
     }
+}
+
+/// True when every discrete-time pole lies strictly inside the unit circle.
+pub fn inside_unit_circle(poles: &[Complex<f64>]) -> bool {
+    poles.iter().all(|z| z.norm() < 1.0)
 }
 
 /// Eigenvalues of a square matrix through the real Schur form.

@@ -143,7 +143,7 @@ impl Prepared {
         let gamma = DMatrix::from_fn(i, n, |r, c| u[(r, c)] * sv[c].max(0.0).sqrt());
         let gamma_pinv = pinv(gamma.clone())?;
         let stable_or_padded = |a: DMatrix<f64>| {
-            let unstable = super::ss::eigenvalues(&a).map(|p| p.iter().any(|z| z.norm() >= 1.0)).unwrap_or(true);
+            let unstable = !super::ss::eigenvalues(&a).is_ok_and(|p| super::ss::inside_unit_circle(&p));
             if unstable {
                 let mut padded = DMatrix::zeros(i, n);
                 padded.rows_mut(0, i - 1).copy_from(&gamma.rows(1, i - 1));
