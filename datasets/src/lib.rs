@@ -6,7 +6,7 @@ pub mod csv;
 pub mod error;
 pub mod gcode;
 pub mod hbot;
-pub mod thermal;
 pub mod pa;
+pub mod thermal;
 
 pub use error::DatasetError;

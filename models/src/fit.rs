@@ -89,8 +89,7 @@ mod tests {
     fn recovers_exponential_decay() {
         let t: Vec<f64> = (0..50).map(|i| i as f64 * 0.1).collect();
         let y: Vec<f64> = t.iter().map(|t| 3.0 * (-0.7 * t).exp()).collect();
-        let fit = least_squares(|p| t.iter().zip(&y).map(|(t, y)| p[0] * (-p[1] * t).exp() - y).collect(), &[1.0, 0.1])
-            .expect("fit");
+        let fit = least_squares(|p| t.iter().zip(&y).map(|(t, y)| p[0] * (-p[1] * t).exp() - y).collect(), &[1.0, 0.1]).expect("fit");
         assert!((fit.params[0] - 3.0).abs() < 1e-6 && (fit.params[1] - 0.7).abs() < 1e-6, "{:?}", fit.params);
     }
 }

@@ -69,7 +69,11 @@ mod tests {
 
     #[test]
     fn non_finite_values_survive_a_json_round_trip() {
-        let t = T { v: vec![1.5, f64::NAN], m: vec![vec![f64::NEG_INFINITY, 2.0]], k: [("rms".to_string(), f64::INFINITY), ("fit".to_string(), 97.5)].into_iter().collect() };
+        let t = T {
+            v: vec![1.5, f64::NAN],
+            m: vec![vec![f64::NEG_INFINITY, 2.0]],
+            k: [("rms".to_string(), f64::INFINITY), ("fit".to_string(), 97.5)].into_iter().collect(),
+        };
         let json = serde_json::to_string(&t).expect("json");
         assert_eq!(json, r#"{"v":[1.5,null],"m":[[null,2.0]],"k":{"fit":97.5,"rms":null}}"#);
         let back: T = serde_json::from_str(&json).expect("read back");

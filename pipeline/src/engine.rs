@@ -45,7 +45,13 @@ fn check_graph(spec: &SpecFile, stages: &[Stage]) -> Result<()> {
         }
         for f in &s.files {
             if !f.is_file() {
-                return Err(Error::Input { file: spec.path.display().to_string(), line: 0, column: 0, key: String::new(), message: format!("input file `{}` does not exist", f.display()) });
+                return Err(Error::Input {
+                    file: spec.path.display().to_string(),
+                    line: 0,
+                    column: 0,
+                    key: String::new(),
+                    message: format!("input file `{}` does not exist", f.display()),
+                });
             }
         }
     }
@@ -235,7 +241,8 @@ fn git_rev(dir: &Path) -> Option<String> {
 fn progress_bar(show: bool, len: usize, name: &str) -> Option<indicatif::ProgressBar> {
     show.then(|| {
         let bar = indicatif::ProgressBar::new(len as u64);
-        let style = indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        let style =
+            indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
         bar.set_style(style);
         bar.set_prefix(name.to_string());
         bar

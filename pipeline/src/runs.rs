@@ -147,7 +147,10 @@ pub fn scan(store: &Store) -> RunScan {
             }
         };
         let record = path.join("run.json");
-        let unreadable = |e: &dyn std::fmt::Display| Unreadable { message: format!("{}: {e}", record.display()), id: path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default() };
+        let unreadable = |e: &dyn std::fmt::Display| Unreadable {
+            message: format!("{}: {e}", record.display()),
+            id: path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
+        };
         match fs::read(&record) {
             Ok(bytes) => match serde_json::from_slice::<RunRecord>(&bytes) {
                 Ok(r) => out.runs.push(r),

@@ -63,7 +63,8 @@ impl SpecFile {
 
     /// Parse a spec held in memory (`path` is used in messages and to resolve inputs).
     pub fn from_text(path: &Path, text: String) -> Result<SpecFile> {
-        let mut spec = SpecFile { path: path.to_path_buf(), text, header: Header { name: String::new(), kind: String::new(), seed: 0, description: String::new() } };
+        let mut spec =
+            SpecFile { path: path.to_path_buf(), text, header: Header { name: String::new(), kind: String::new(), seed: 0, description: String::new() } };
         let probe: Probe = toml::from_str(&spec.text).map_err(|e| spec.toml_error(&e))?;
         let Some(header) = probe.experiment else {
             return Err(spec.error_at(0, 0, "experiment", "missing the [experiment] table (name, kind, seed)"));
@@ -194,7 +195,13 @@ pub fn collect(path: &Path) -> Result<Vec<PathBuf>> {
             .collect();
         v.sort();
         if v.is_empty() {
-            return Err(Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: "no *.toml spec in this folder".into() });
+            return Err(Error::Input {
+                file: path.display().to_string(),
+                line: 0,
+                column: 0,
+                key: String::new(),
+                message: "no *.toml spec in this folder".into(),
+            });
         }
         Ok(v)
     } else {

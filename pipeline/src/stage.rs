@@ -162,11 +162,15 @@ impl StageInput<'_> {
     /// Output `name` of `stage`, deserialised from JSON.
     pub fn json<T: DeserializeOwned>(&self, stage: &str, name: &str) -> Result<T> {
         let bytes = self.output(stage, name)?;
-        serde_json::from_slice(&bytes).map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("`{stage}/{name}` is not the expected JSON: {e}") })
+        serde_json::from_slice(&bytes)
+            .map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("`{stage}/{name}` is not the expected JSON: {e}") })
     }
     /// Bytes of a declared external input file (as hashed when the stage was keyed).
     pub fn file(&self, path: &std::path::Path) -> Result<Vec<u8>> {
-        let hash = self.files.get(path).ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("file `{}` was not declared as an input", path.display()) })?;
+        let hash = self
+            .files
+            .get(path)
+            .ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("file `{}` was not declared as an input", path.display()) })?;
         self.store.get(hash)
     }
     /// This stage's parameters deserialised into `T`.

@@ -57,7 +57,17 @@ fn effects_table(caption: &str, t: &TaguchiResult) -> Table {
         let k = |i: usize| f.level_means.get(i).map_or("–".into(), |v| num(*v, 4));
         let lv: Vec<String> = fac.levels.iter().map(|v| num(*v, 3)).collect();
         let sn: Vec<String> = f.sn_level_means.iter().map(|v| num(*v, 3)).collect();
-        table.push([f.name.clone(), lv.join(" / "), k(0), k(1), k(2), num(f.range, 3), f.rank.to_string(), sn.join(" / "), format!("level {} = {}", f.best_level, num(fac.levels[usize::from(f.best_level) - 1], 4))]);
+        table.push([
+            f.name.clone(),
+            lv.join(" / "),
+            k(0),
+            k(1),
+            k(2),
+            num(f.range, 3),
+            f.rank.to_string(),
+            sn.join(" / "),
+            format!("level {} = {}", f.best_level, num(fac.levels[usize::from(f.best_level) - 1], 4)),
+        ]);
     }
     table
 }
@@ -107,7 +117,10 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
         taguchi_blocks(&mut r, "cart", t);
     }
     r.heading("Identified parameters");
-    let mut t = Table::new("Identified parameters against the hidden truth", ["parameter", "unit", "initial", "Taguchi", "direct (LM)", "true", "Taguchi error %", "LM error %"]);
+    let mut t = Table::new(
+        "Identified parameters against the hidden truth",
+        ["parameter", "unit", "initial", "Taguchi", "direct (LM)", "true", "Taguchi error %", "LM error %"],
+    );
     let err = |a: f64, b: f64| if b != 0.0 { num(100.0 * (a - b) / b, 3) } else { "–".into() };
     for p in Param::ALL {
         let (i, tg, d, tr) = (v.cfg.initial.get(p), v.taguchi.params.get(p), v.direct.params.get(p), v.cfg.truth.get(p));
@@ -136,7 +149,11 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
     r.heading("Positioning-error compensation");
     let c = v.compensation_taguchi;
     let mut ct = Table::new(
-        format!("Moves at {} mm/s stopped at t, compensated with the Taguchi set (S_input = S_nom + (S_nom − S_sim); iterated {}×)", num(c.speed_mm_s, 5), c.iterations),
+        format!(
+            "Moves at {} mm/s stopped at t, compensated with the Taguchi set (S_input = S_nom + (S_nom − S_sim); iterated {}×)",
+            num(c.speed_mm_s, 5),
+            c.iterations
+        ),
         ["stop (s)", "nominal (mm)", "command (mm)", "before (mm)", "after (mm)", "after, iterated (mm)"],
     );
     for k in &c.cases {
@@ -146,8 +163,20 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
     let d = v.compensation_direct;
     r.table(
         Table::new("Mean absolute positioning error (mm); source: 0.064 → 0.005", ["model", "before", "after", "after, iterated", "reduction"])
-            .row(["Taguchi".to_string(), num(c.mae_before_mm, 4), num(c.mae_after_mm, 4), num(c.mae_after_iterated_mm, 4), format!("{}×", num(c.mae_before_mm / c.mae_after_mm.max(1e-12), 3))])
-            .row(["direct (LM)".to_string(), num(d.mae_before_mm, 4), num(d.mae_after_mm, 4), num(d.mae_after_iterated_mm, 4), format!("{}×", num(d.mae_before_mm / d.mae_after_mm.max(1e-12), 3))]),
+            .row([
+                "Taguchi".to_string(),
+                num(c.mae_before_mm, 4),
+                num(c.mae_after_mm, 4),
+                num(c.mae_after_iterated_mm, 4),
+                format!("{}×", num(c.mae_before_mm / c.mae_after_mm.max(1e-12), 3)),
+            ])
+            .row([
+                "direct (LM)".to_string(),
+                num(d.mae_before_mm, 4),
+                num(d.mae_after_mm, 4),
+                num(d.mae_after_iterated_mm, 4),
+                format!("{}×", num(d.mae_before_mm / d.mae_after_mm.max(1e-12), 3)),
+            ]),
     );
     let pts = |f: fn(&fdmlab_models::hbot::compensate::CompensationCase) -> f64| c.cases.iter().map(|k| (k.stop_s, f(k) - k.nominal_mm)).collect::<Vec<_>>();
     r.plot(

@@ -4,9 +4,9 @@
 //! type only has to say which blocks describe it.
 
 mod error;
+pub mod hbot;
 mod plot;
 mod table;
-pub mod hbot;
 pub mod thermal;
 
 pub use error::ReportError;

@@ -134,7 +134,11 @@ mod tests {
 
     #[test]
     fn line_points_marks_every_point_and_a_single_point_stays_visible() {
-        let svg = LinePlot::new("Fit by order", "order", "fit %").line_points("arx", vec![(1.0, 90.0), (2.0, 95.0), (3.0, 96.0)]).line_points("fopdt", vec![(1.0, 93.0)]).to_svg().expect("svg");
+        let svg = LinePlot::new("Fit by order", "order", "fit %")
+            .line_points("arx", vec![(1.0, 90.0), (2.0, 95.0), (3.0, 96.0)])
+            .line_points("fopdt", vec![(1.0, 93.0)])
+            .to_svg()
+            .expect("svg");
         assert_eq!(svg.matches("<circle").count(), 4, "{svg}");
         let plain = LinePlot::new("t", "x", "y").line("arx", vec![(1.0, 90.0), (2.0, 95.0)]).to_svg().expect("svg");
         assert_eq!(plain.matches("<circle").count(), 0);

@@ -31,7 +31,12 @@ impl Table {
     /// GitHub-flavoured Markdown (caption in bold above).
     pub fn to_markdown(&self) -> String {
         let cell = |s: &str| s.replace('|', "\\|");
-        let mut out = format!("**{}**\n\n| {} |\n|{}\n", self.caption, self.columns.iter().map(|c| cell(c)).collect::<Vec<_>>().join(" | "), "---|".repeat(self.columns.len()));
+        let mut out = format!(
+            "**{}**\n\n| {} |\n|{}\n",
+            self.caption,
+            self.columns.iter().map(|c| cell(c)).collect::<Vec<_>>().join(" | "),
+            "---|".repeat(self.columns.len())
+        );
         for r in &self.rows {
             out += &format!("| {} |\n", r.iter().map(|c| cell(c)).collect::<Vec<_>>().join(" | "));
         }
@@ -41,7 +46,11 @@ impl Table {
     /// An HTML `<table>` with a caption.
     pub fn to_html(&self) -> String {
         let e = crate::html_escape;
-        let mut out = format!("<table><caption>{}</caption>\n<tr>{}</tr>\n", e(&self.caption), self.columns.iter().map(|c| format!("<th>{}</th>", e(c))).collect::<String>());
+        let mut out = format!(
+            "<table><caption>{}</caption>\n<tr>{}</tr>\n",
+            e(&self.caption),
+            self.columns.iter().map(|c| format!("<th>{}</th>", e(c))).collect::<String>()
+        );
         for r in &self.rows {
             out += &format!("<tr>{}</tr>\n", r.iter().map(|c| format!("<td>{}</td>", e(c))).collect::<String>());
         }

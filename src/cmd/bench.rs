@@ -63,7 +63,9 @@ fn engine_bench(spec: &std::path::Path, repeat: u32, ctx: &Ctx) -> anyhow::Resul
     let warm_s = t.elapsed().as_secs_f64() / f64::from(repeat);
     let _ = std::fs::remove_dir_all(&scratch);
     let value = serde_json::json!({"spec": spec.display().to_string(), "stages": cold.stages.len(), "cold_s": cold_s, "cached_s": warm_s, "cached_stages_run": stages_run, "speedup": cold_s / warm_s});
-    ctx.emit(&value, || format!("{}: cold run {:.4} s, cached rerun {:.4} s ({} stages ran), {:.0}× faster\n", spec.display(), cold_s, warm_s, stages_run, cold_s / warm_s));
+    ctx.emit(&value, || {
+        format!("{}: cold run {:.4} s, cached rerun {:.4} s ({} stages ran), {:.0}× faster\n", spec.display(), cold_s, warm_s, stages_run, cold_s / warm_s)
+    });
     Ok(())
 }
 

@@ -3,12 +3,12 @@
 
 use super::Ctx;
 use fdmlab_datasets::hbot::{gcode_steps, steps, taguchi_csv, trajectory};
-use fdmlab_pipeline::store::write_file_atomic;
 use fdmlab_models::doe::{analyze, OrthogonalArray, Sense};
 use fdmlab_models::hbot::ident;
 use fdmlab_models::hbot::study::{self, StudyConfig};
 use fdmlab_models::hbot::{HbotParams, LinearMove, Param, StepperDrive, Twin};
 use fdmlab_pipeline::stage::Artifact;
+use fdmlab_pipeline::store::write_file_atomic;
 use fdmlab_pipeline::Error;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -143,7 +143,6 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
 
-
 /// Parameters from the chosen set plus `--set` overrides.
 fn params_from(set: ParamSet, overrides: &[String]) -> anyhow::Result<HbotParams> {
     let mut p = match set {
@@ -157,7 +156,9 @@ fn params_from(set: ParamSet, overrides: &[String]) -> anyhow::Result<HbotParams
             "drive.stiffness" => p.drive = StepperDrive { stiffness_nm_per_rad: v, ..p.drive },
             "drive.holding_torque" => p.drive = StepperDrive { holding_torque_nm: v, ..p.drive },
             n => {
-                let param = Param::from_name(n).ok_or_else(|| bad(format!("--set: unknown parameter `{n}` (known: {}, drive.stiffness, drive.holding_torque)", Param::ALL.map(|p| p.name()).join(", "))))?;
+                let param = Param::from_name(n).ok_or_else(|| {
+                    bad(format!("--set: unknown parameter `{n}` (known: {}, drive.stiffness, drive.holding_torque)", Param::ALL.map(|p| p.name()).join(", ")))
+                })?;
                 p = p.with(param, v);
             }
         }
@@ -207,15 +208,34 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
     match &a.out {
         Some(path) => {
             let parquet = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
-            let (bytes, media) = if parquet { (trajectory::to_parquet(&tr)?, "application/vnd.apache.parquet") } else { (trajectory::to_csv(&tr).into_bytes(), "text/csv") };
+            let (bytes, media) =
+                if parquet { (trajectory::to_parquet(&tr)?, "application/vnd.apache.parquet") } else { (trajectory::to_csv(&tr).into_bytes(), "text/csv") };
             write_file_atomic(path, &bytes)?;
             let name = path.file_name().map_or("trajectory".into(), |n| n.to_string_lossy().into_owned());
             let params_json = serde_json::json!({ "params": params, "axis": if matches!(a.axis, AxisArg::X) { "x" } else { "y" }, "distance_mm": a.distance_mm, "duration_s": a.duration_s, "settle_s": a.settle_s, "sample_dt_s": a.sample_dt_s });
             let metrics = BTreeMap::from([("y_at_stop_mm".to_string(), tr.y_m[stop] * 1e3), ("x_at_stop_mm".to_string(), tr.x_m[stop] * 1e3)]);
-            let rec = fdmlab_pipeline::runs::record_command(&ctx.store()?, "hbot simulate", params_json, vec![], vec![Artifact { name, media_type: media.into(), bytes }], metrics, wall_s)?;
+            let rec = fdmlab_pipeline::runs::record_command(
+                &ctx.store()?,
+                "hbot simulate",
+                params_json,
+                vec![],
+                vec![Artifact { name, media_type: media.into(), bytes }],
+                metrics,
+                wall_s,
+            )?;
             let mut v = summary;
             v["run"] = serde_json::json!(rec.id);
-            ctx.emit(&v, || format!("wrote {} ({} samples, step {:.3e} s); at the stop x = {:.4} mm, y = {:.4} mm; run {}", path.display(), tr.t_s.len(), tr.step_s, tr.x_m[stop] * 1e3, tr.y_m[stop] * 1e3, rec.id));
+            ctx.emit(&v, || {
+                format!(
+                    "wrote {} ({} samples, step {:.3e} s); at the stop x = {:.4} mm, y = {:.4} mm; run {}",
+                    path.display(),
+                    tr.t_s.len(),
+                    tr.step_s,
+                    tr.x_m[stop] * 1e3,
+                    tr.y_m[stop] * 1e3,
+                    rec.id
+                )
+            });
         }
         None if ctx.json => ctx.emit(&summary, String::new),
         None => print!("{}", trajectory::to_csv(&tr)),
@@ -226,7 +246,12 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
 fn steps_cmd(a: StepsArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let text = super::read_input_text(&a.file)?;
     let file = a.file.display().to_string();
-    let cfg = steps::StepConfig { steps_per_mm_xy: a.steps_per_mm_xy, steps_per_mm_z: a.steps_per_mm_z, steps_per_mm_e: a.steps_per_mm_e, bed_mm: [a.bed_mm[0], a.bed_mm[1]] };
+    let cfg = steps::StepConfig {
+        steps_per_mm_xy: a.steps_per_mm_xy,
+        steps_per_mm_z: a.steps_per_mm_z,
+        steps_per_mm_e: a.steps_per_mm_e,
+        bed_mm: [a.bed_mm[0], a.bed_mm[1]],
+    };
     let stream = gcode_steps::steps_from_gcode(&text, &file, cfg)?;
     let body = if a.ticks { steps::ticks_csv(&stream.blocks, a.max_ticks)? } else { steps::to_csv(&stream.blocks) };
     let mut totals = [0i64; 6];
@@ -274,9 +299,17 @@ fn array(a: ArrayArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if let Some(path) = &a.csv {
         write_file_atomic(path, taguchi_csv::template(&names, &rows, "s").as_bytes())?;
     }
-    let value = serde_json::json!({ "array": oa.name, "runs": rows.len(), "factors": names, "columns": columns, "orthogonal": oa.is_orthogonal(), "rows": rows });
+    let value =
+        serde_json::json!({ "array": oa.name, "runs": rows.len(), "factors": names, "columns": columns, "orthogonal": oa.is_orthogonal(), "rows": rows });
     ctx.emit(&value, || {
-        let mut s = format!("{} ({} runs), columns {:?}, orthogonal: {}\nrun  {}\n", oa.name, rows.len(), columns, oa.is_orthogonal(), names.iter().map(|n| format!("{n:>4}")).collect::<String>());
+        let mut s = format!(
+            "{} ({} runs), columns {:?}, orthogonal: {}\nrun  {}\n",
+            oa.name,
+            rows.len(),
+            columns,
+            oa.is_orthogonal(),
+            names.iter().map(|n| format!("{n:>4}")).collect::<String>()
+        );
         for (i, r) in rows.iter().enumerate() {
             s += &format!("{:>3}  {}\n", i + 1, r.iter().map(|l| format!("{l:>4}")).collect::<String>());
         }
@@ -291,11 +324,17 @@ fn analyze_cmd(a: AnalyzeArgs, ctx: &Ctx) -> anyhow::Result<()> {
     table.check_balanced(&a.file.display().to_string())?;
     let sense = if a.larger_better { Sense::LargerBetter } else { Sense::SmallerBetter };
     let an = analyze(&table.factors, &table.levels, &table.response, sense).map_err(|e| bad(format!("{}: {e}", a.file.display())))?;
-    let factors: Vec<serde_json::Value> = an.factors.iter().map(|f| serde_json::json!({ "name": f.name, "level_means": f.level_means, "range": f.range, "rank": f.rank })).collect();
+    let factors: Vec<serde_json::Value> =
+        an.factors.iter().map(|f| serde_json::json!({ "name": f.name, "level_means": f.level_means, "range": f.range, "rank": f.rank })).collect();
     let optimum: serde_json::Map<String, serde_json::Value> = an.factors.iter().map(|f| (f.name.clone(), serde_json::json!(f.best_level))).collect();
     let value = serde_json::json!({ "factors": factors, "optimum": optimum, "anova": an.anova });
     ctx.emit(&value, || {
-        let mut s = format!("{} runs, {} ({})\nfactor        k1          k2          k3          R           rank  best\n", table.response.len(), a.response, if a.larger_better { "larger is better" } else { "smaller is better" });
+        let mut s = format!(
+            "{} runs, {} ({})\nfactor        k1          k2          k3          R           rank  best\n",
+            table.response.len(),
+            a.response,
+            if a.larger_better { "larger is better" } else { "smaller is better" }
+        );
         for f in &an.factors {
             let k: String = f.level_means.iter().map(|v| format!("{v:<12.5}")).collect();
             s += &format!("{:<13} {k}{:<12.5}{:<6}{}\n", f.name, f.range, f.rank, f.best_level);

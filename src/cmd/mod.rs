@@ -49,7 +49,8 @@ impl Ctx {
 /// Read an input file the user named: a missing or unreadable file is bad
 /// input (exit 2), and bytes that are not UTF-8 are located by line.
 pub fn read_input(path: &std::path::Path) -> anyhow::Result<Vec<u8>> {
-    std::fs::read(path).map_err(|e| fdmlab_pipeline::Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: e.to_string() }.into())
+    std::fs::read(path)
+        .map_err(|e| fdmlab_pipeline::Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: e.to_string() }.into())
 }
 
 /// [`read_input`] as text.

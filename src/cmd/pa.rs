@@ -1,7 +1,6 @@
 //! Pressure advance: `fdmlab gcode pa`, `fdmlab ka grid|scores|train|predict`,
 //! `fdmlab export ka`, `fdmlab bench pa`.
 
-use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
 use super::Ctx;
 use anyhow::Context as _;
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
@@ -13,6 +12,7 @@ use fdmlab_models::nets::TrainConfig;
 use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
+use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
 use fdmlab_pipeline::{Error, Hash, Store};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -100,7 +100,15 @@ impl GcodePaArgs {
             slow_len_mm: self.slow_len.unwrap_or(if tower { 10.0 } else { 30.0 }),
             fast_len_mm: self.fast_len.unwrap_or(if tower { 30.0 } else { 40.0 }),
         };
-        let printer = Printer { firmware, bed_mm: bed, max_z_mm: self.max_z, nozzle_mm: self.nozzle, filament_mm: self.filament, max_hotend_c: self.max_hotend, max_bed_c: self.max_bed };
+        let printer = Printer {
+            firmware,
+            bed_mm: bed,
+            max_z_mm: self.max_z,
+            nozzle_mm: self.nozzle,
+            filament_mm: self.filament,
+            max_hotend_c: self.max_hotend,
+            max_bed_c: self.max_bed,
+        };
         let cal = Calibration {
             pattern,
             k_start: self.k_start,
@@ -127,7 +135,6 @@ fn parse_pair(s: &str) -> Option<[f64; 2]> {
     Some([a.trim().parse().ok()?, b.trim().parse().ok()?])
 }
 
-
 fn manifest_path(gcode: &Path) -> PathBuf {
     let mut s = gcode.as_os_str().to_owned();
     s.push(".json");
@@ -151,7 +158,15 @@ pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
                 "k": g.manifest.regions.iter().map(|r| r.k).collect::<Vec<_>>(),
                 "e_per_mm": g.manifest.e_per_mm,
             });
-            ctx.emit(&value, || format!("wrote {} ({} K values, {} lines of G-code) and {}\n", a.output.display(), g.manifest.regions.len(), g.text.lines().count(), mpath.display()));
+            ctx.emit(&value, || {
+                format!(
+                    "wrote {} ({} K values, {} lines of G-code) and {}\n",
+                    a.output.display(),
+                    g.manifest.regions.len(),
+                    g.text.lines().count(),
+                    mpath.display()
+                )
+            });
             Ok(())
         }
     }
@@ -235,7 +250,11 @@ pub struct TrainArgs {
 
 /// Hidden widths `a,b,c`.
 pub fn parse_hidden(s: &str) -> Result<[usize; 3], Error> {
-    let v: Vec<usize> = s.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|_| Error::bad_input(format!("--hidden `{s}`: expected three widths a,b,c")))?;
+    let v: Vec<usize> = s
+        .split(',')
+        .map(|x| x.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| Error::bad_input(format!("--hidden `{s}`: expected three widths a,b,c")))?;
     match v.as_slice() {
         [a, b, c] if *a > 0 && *b > 0 && *c > 0 => Ok([*a, *b, *c]),
         _ => Err(Error::bad_input(format!("--hidden `{s}`: expected three positive widths a,b,c"))),
@@ -268,7 +287,6 @@ pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
     Ok((model, hash))
 }
 
-
 /// `fdmlab ka …`
 pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
@@ -288,7 +306,13 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         }
         KaCommand::Scores { manifest, scores: file, scale } => {
             let mb = super::read_input(&manifest)?;
-            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input {
+                file: manifest.display().to_string(),
+                line: e.line(),
+                column: e.column(),
+                key: String::new(),
+                message: e.to_string(),
+            })?;
             let s = scores::ingest(&super::read_input(&file)?, &file.display().to_string(), &m, scale)?;
             let value = serde_json::json!({"best_k": s.best.k, "best_k_sd": s.best.k_sd, "best_line": s.best.best_line + 1, "window": s.best.window, "raters": s.raters, "rows": s.rows, "kendall_w": s.kendall_w, "kendall_lines": s.kendall_lines});
             ctx.emit(&value, || {
@@ -307,7 +331,13 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         }
         KaCommand::SimulateScores { manifest, k_true, raters, seed, output } => {
             let mb = super::read_input(&manifest)?;
-            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input { file: manifest.display().to_string(), line: e.line(), column: e.column(), key: String::new(), message: e.to_string() })?;
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input {
+                file: manifest.display().to_string(),
+                line: e.line(),
+                column: e.column(),
+                key: String::new(),
+                message: e.to_string(),
+            })?;
             if !(k_true > 0.0 && k_true <= 10.0) || raters == 0 || raters > 50 {
                 return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
             }
@@ -317,14 +347,19 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let t = fdmlab_models::extrusion::scoring::simulate_print(&m.line, k_true, &k, &panel, &mut rng)?;
             let names: Vec<String> = (1..=raters).map(|i| format!("rater{i}")).collect();
             write_file_atomic(&output, scores::to_csv(&t, &names, &m).as_bytes())?;
-            ctx.emit(&serde_json::json!({"output": output.display().to_string(), "lines": k.len(), "raters": raters}), || format!("wrote {} ({} lines × {raters} raters)\n", output.display(), k.len()));
+            ctx.emit(&serde_json::json!({"output": output.display().to_string(), "lines": k.len(), "raters": raters}), || {
+                format!("wrote {} ({} lines × {raters} raters)\n", output.display(), k.len())
+            });
             Ok(())
         }
         KaCommand::Train(a) => {
             let t0 = Instant::now();
             let bytes = super::read_input(&a.data)?;
             let t = table::load(&bytes, &a.data.display().to_string(), &a.target, a.features.as_deref())?;
-            let settings = MlpSettings { hidden: parse_hidden(&a.hidden)?, train: TrainConfig { epochs: a.epochs, batch_size: a.batch, learning_rate: a.lr, seed: a.seed } };
+            let settings = MlpSettings {
+                hidden: parse_hidden(&a.hidden)?,
+                train: TrainConfig { epochs: a.epochs, batch_size: a.batch, learning_rate: a.lr, seed: a.seed },
+            };
             settings.train.check()?;
             if a.folds < 2 || a.folds > t.design.rows() {
                 return Err(Error::bad_input(format!("--folds {} must be within 2 and the {} rows", a.folds, t.design.rows())).into());
@@ -333,7 +368,8 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let model_json = model.to_json()?;
             let store = ctx.store()?;
             let data_hash = store.put(&bytes)?;
-            let params = serde_json::json!({"data": a.data.display().to_string(), "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
+            let params =
+                serde_json::json!({"data": a.data.display().to_string(), "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
             let mut metrics = BTreeMap::new();
             for m in &cv.models {
                 metrics.insert(format!("{}_mae", m.name), m.mae);
@@ -426,7 +462,9 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match &a.output {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
-            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len()}), || format!("wrote {}\n", p.display()));
+            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len()}), || {
+                format!("wrote {}\n", p.display())
+            });
         }
         None => print!("{text}"),
     }
@@ -487,7 +525,16 @@ pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result
 
 /// Compile the C header with `cc -O3` (what the header asks for) and time 1e6 predictions.
 fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<Option<f64>> {
-    let km = KaModel { schema: MODEL_SCHEMA.into(), encoding: tb.encoding.clone(), settings: MlpSettings::default(), model: model.clone(), cv: vec![], folds: 0, rows: 0, support: vec![] };
+    let km = KaModel {
+        schema: MODEL_SCHEMA.into(),
+        encoding: tb.encoding.clone(),
+        settings: MlpSettings::default(),
+        model: model.clone(),
+        cv: vec![],
+        folds: 0,
+        rows: 0,
+        support: vec![],
+    };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
     let dir = super::bench::tempdir()?;
     std::fs::write(dir.join("ka.h"), header)?;
@@ -499,8 +546,16 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
     );
     std::fs::write(dir.join("main.c"), main)?;
     let exe = dir.join("ka-bench");
-    let ok = std::process::Command::new("cc").args(["-std=c99", "-O3", "-o"]).arg(&exe).arg(dir.join("main.c")).arg("-lm").status().map(|s| s.success()).unwrap_or(false);
-    let out = if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
+    let ok = std::process::Command::new("cc")
+        .args(["-std=c99", "-O3", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.c"))
+        .arg("-lm")
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    let out =
+        if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
     let _ = std::fs::remove_dir_all(&dir);
     Ok(out)
 }
@@ -511,7 +566,8 @@ fn torch_time(script: &Path, csv: &str, epochs: usize) -> anyhow::Result<f64> {
     let path = dir.join("grid.csv");
     std::fs::write(&path, csv)?;
     let python = std::env::var("FDMLAB_PYTHON").unwrap_or_else(|_| "python3".into());
-    let out = std::process::Command::new(python).arg(script).arg(&path).arg("--epochs").arg(epochs.to_string()).output().context("running the PyTorch script")?;
+    let out =
+        std::process::Command::new(python).arg(script).arg(&path).arg("--epochs").arg(epochs.to_string()).output().context("running the PyTorch script")?;
     let _ = std::fs::remove_dir_all(&dir);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).with_context(|| String::from_utf8_lossy(&out.stderr).to_string())?;
     v["seconds"].as_f64().context("no `seconds` in the PyTorch output")

@@ -51,14 +51,28 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
                     .collect(),
             );
             ctx.emit(&value, || {
-                list.iter().map(|r| format!("{}  {:<28} {:<18} {}/{} ran  {:.2} s\n", r.id, r.experiment, r.kind, r.stages_run(), r.stages.len(), r.wall_s)).collect()
+                list.iter()
+                    .map(|r| format!("{}  {:<28} {:<18} {}/{} ran  {:.2} s\n", r.id, r.experiment, r.kind, r.stages_run(), r.stages.len(), r.wall_s))
+                    .collect()
             });
         }
         RunsCommand::Show { id } => {
             let r = runs::find(&store, &id)?;
             let value = serde_json::to_value(&r)?;
             ctx.emit(&value, || {
-                let mut s = format!("run {}\nexperiment {} ({})\nspec {} [{}]\nfdmlab {}  git {}\nseed {}  started {}  {:.3} s\n", r.id, r.experiment, r.kind, r.spec_path, &r.spec_hash[..12], r.fdmlab_version, r.git_rev.as_deref().unwrap_or("-"), r.seed, r.started_at, r.wall_s);
+                let mut s = format!(
+                    "run {}\nexperiment {} ({})\nspec {} [{}]\nfdmlab {}  git {}\nseed {}  started {}  {:.3} s\n",
+                    r.id,
+                    r.experiment,
+                    r.kind,
+                    r.spec_path,
+                    &r.spec_hash[..12],
+                    r.fdmlab_version,
+                    r.git_rev.as_deref().unwrap_or("-"),
+                    r.seed,
+                    r.started_at,
+                    r.wall_s
+                );
                 for st in &r.stages {
                     s += &format!("\n[{}] key {} {} {:.3} s\n", st.name, &st.key[..16], if st.cached { "cached" } else { "ran" }, st.wall_s);
                     for i in &st.inputs {
@@ -133,7 +147,10 @@ pub fn gc(ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let report = store.gc()?;
     ctx.emit(&serde_json::to_value(&report)?, || {
-        let mut s = format!("removed {} blob(s) ({} B), {} stage record(s), {} temp file(s)\n", report.removed_blobs, report.freed_bytes, report.removed_stage_records, report.removed_temp);
+        let mut s = format!(
+            "removed {} blob(s) ({} B), {} stage record(s), {} temp file(s)\n",
+            report.removed_blobs, report.freed_bytes, report.removed_stage_records, report.removed_temp
+        );
         if report.kept_recent > 0 || report.runs_in_flight > 0 {
             s += &format!("kept {} unreferenced item(s) written in the last hour or by {} run(s) in flight\n", report.kept_recent, report.runs_in_flight);
         }

@@ -1,7 +1,6 @@
 //! `fdmlab thermal …` (identify, place, simulate, grid, gcode), `fdmlab export
 //! thermal` and `fdmlab bench thermal`.
 
-use fdmlab_pipeline::store::write_file_atomic;
 use super::Ctx;
 use anyhow::Context;
 use fdmlab_datasets::thermal::{self as tlog, export, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
@@ -13,6 +12,7 @@ use fdmlab_models::thermal::model::{Family, ThermalModel};
 use fdmlab_models::thermal::ss::StateSpace;
 use fdmlab_models::thermal::twin::{self, StepTest, Twin};
 use fdmlab_pipeline::stage::{Artifact, InputRef};
+use fdmlab_pipeline::store::write_file_atomic;
 use fdmlab_pipeline::{Error, Hash};
 use nalgebra::{Complex, DMatrix};
 use serde_json::json;
@@ -235,7 +235,6 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
 
-
 /// Parse every log; returns the experiments and each file's (name, text) for
 /// [`store_inputs`] once the store is open (bad input writes nothing).
 fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<(String, String)>)> {
@@ -281,7 +280,13 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let read = a.read.options()?;
     let (exps, log_files) = read_logs(&a.logs, &read)?;
     let (verif, verif_files) = read_logs(&a.verify, &read)?;
-    let mut opts = IdentOptions { orders: parse_orders(&a.orders)?, inputs: a.inputs.split(',').map(|s| s.trim().to_string()).collect(), horizon: a.horizon, tf_zeros: a.tf_zeros, ..Default::default() };
+    let mut opts = IdentOptions {
+        orders: parse_orders(&a.orders)?,
+        inputs: a.inputs.split(',').map(|s| s.trim().to_string()).collect(),
+        horizon: a.horizon,
+        tf_zeros: a.tf_zeros,
+        ..Default::default()
+    };
     if let Some(f) = &a.families {
         opts.families = f.split(',').map(|s| Family::parse(s.trim())).collect::<Result<_, _>>().map_err(|e| bad(format!("--families: {e}")))?;
     }
@@ -323,7 +328,18 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let record = fdmlab_pipeline::runs::record_command(&store, "thermal identify", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
     ctx.emit(&out, || {
-        let mut s = format!("{} samples, {} models ({} failed) in {:.3} s\n{:<10} {:>5} {:>9} {:>9} {:>12}  model\n", result.rows, result.models.len(), result.failures.len(), wall, "family", "order", "fit %", "rms °C", "AIC");
+        let mut s = format!(
+            "{} samples, {} models ({} failed) in {:.3} s\n{:<10} {:>5} {:>9} {:>9} {:>12}  model\n",
+            result.rows,
+            result.models.len(),
+            result.failures.len(),
+            wall,
+            "family",
+            "order",
+            "fit %",
+            "rms °C",
+            "AIC"
+        );
         for r in out["models"].as_array().into_iter().flatten() {
             s.push_str(&format!(
                 "{:<10} {:>5} {:>9.3} {:>9.3} {:>12.1}  {}\n",
@@ -366,7 +382,14 @@ fn parse_pole(s: &str) -> anyhow::Result<Complex<f64>> {
     let t = s.trim();
     let err = || bad(format!("pole `{s}`: expected a number or `a+bi`"));
     if let Some(body) = t.strip_suffix('i').or_else(|| t.strip_suffix('j')) {
-        let split = body.char_indices().skip(1).filter(|(_, c)| *c == '+' || *c == '-').map(|(i, _)| i).filter(|&i| !matches!(body.as_bytes()[i - 1], b'e' | b'E')).last().ok_or_else(err)?;
+        let split = body
+            .char_indices()
+            .skip(1)
+            .filter(|(_, c)| *c == '+' || *c == '-')
+            .map(|(i, _)| i)
+            .filter(|&i| !matches!(body.as_bytes()[i - 1], b'e' | b'E'))
+            .last()
+            .ok_or_else(err)?;
         let re: f64 = body[..split].parse().map_err(|_| err())?;
         let im: f64 = body[split..].parse().map_err(|_| err())?;
         Ok(Complex::new(re, im))
@@ -403,7 +426,12 @@ fn place(a: PlaceArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let (ss, _, _) = load_model(&a.model.model, ctx)?;
     let (_, p) = design(&ss, &a.poles, a.discrete, a.method.as_deref())?;
     let value = serde_json::to_value(&p)?;
-    ctx.emit(&value, || format!("L = {:?}\nM = {}\nclosed-loop poles = {:?}\nmethod: {:?}, controllability condition {:.3e}\n", p.l, p.m, p.closed_loop_poles, p.method, p.controllability_condition));
+    ctx.emit(&value, || {
+        format!(
+            "L = {:?}\nM = {}\nclosed-loop poles = {:?}\nmethod: {:?}, controllability condition {:.3e}\n",
+            p.l, p.m, p.closed_loop_poles, p.method, p.controllability_condition
+        )
+    });
     Ok(())
 }
 
@@ -426,7 +454,6 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
     ctx.emit(&value, || serde_json::to_string_pretty(&value).unwrap_or_default());
     Ok(())
 }
-
 
 fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let twin = Twin::default();
@@ -475,7 +502,12 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let format = export::Format::parse(&a.format)?;
     let (ss, model, name) = load_model(&a.model.model, ctx)?;
     let note = format!("fdmlab {} from model {}", env!("CARGO_PKG_VERSION"), name);
-    let discrete = |ss: &StateSpace| -> anyhow::Result<StateSpace> { Ok(match ss.dt_s { Some(_) => heater_only(ss)?, None => heater_only(ss)?.c2d(1.0)? }) };
+    let discrete = |ss: &StateSpace| -> anyhow::Result<StateSpace> {
+        Ok(match ss.dt_s {
+            Some(_) => heater_only(ss)?,
+            None => heater_only(ss)?.c2d(1.0)?,
+        })
+    };
     let physics = || -> anyhow::Result<fdmlab_models::thermal::physics::Rates> {
         model.as_ref().and_then(|m| m.physics).ok_or_else(|| bad(format!("format {} needs a grey-box model (identify with the greybox family)", a.format)))
     };
@@ -492,7 +524,11 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
             let plant = discrete(&ss)?;
             let fo = control::fopdt_of(&plant, 4000.0).map_err(|e| bad(e.to_string()))?;
             let pid = control::imc_pid(&fo, plant.dt_s.unwrap_or(1.0));
-            if format == export::Format::MarlinPid { export::marlin_pid(&pid, &note)? } else { export::klipper_pid(&pid, &note)? }
+            if format == export::Format::MarlinPid {
+                export::marlin_pid(&pid, &note)?
+            } else {
+                export::klipper_pid(&pid, &note)?
+            }
         }
         export::Format::CHeader => {
             if a.poles.is_empty() {
@@ -546,18 +582,28 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
         let csv = dir.join("bench-log.csv");
         std::fs::write(&csv, tlog::csv::write(&log))?;
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/thermal_sippy.py");
-        let out = std::process::Command::new(&py).arg(&script).arg(&csv).args(["--orders", "1..8", "--horizon", "20"]).output().with_context(|| format!("running {}", py.display()))?;
+        let out = std::process::Command::new(&py)
+            .arg(&script)
+            .arg(&csv)
+            .args(["--orders", "1..8", "--horizon", "20"])
+            .output()
+            .with_context(|| format!("running {}", py.display()))?;
         let _ = std::fs::remove_dir_all(&dir);
         if !out.status.success() {
             anyhow::bail!("SIPPY baseline failed: {}", String::from_utf8_lossy(&out.stderr));
         }
         let sippy: serde_json::Value = serde_json::from_slice(&out.stdout).context("SIPPY baseline output is not JSON")?;
         let sippy_s = sippy["total_seconds"].as_f64().unwrap_or(f64::NAN);
-        let diffs: Vec<f64> = sippy["orders"].as_array().into_iter().flatten().filter_map(|o| {
-            let n = o["order"].as_u64()? as usize;
-            let f = o["fit_percent"].as_f64()?;
-            ours.iter().find(|(k, _)| *k == n).map(|(_, mine)| mine - f)
-        }).collect();
+        let diffs: Vec<f64> = sippy["orders"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|o| {
+                let n = o["order"].as_u64()? as usize;
+                let f = o["fit_percent"].as_f64()?;
+                ours.iter().find(|(k, _)| *k == n).map(|(_, mine)| mine - f)
+            })
+            .collect();
         value["sippy"] = sippy;
         value["speedup_n4sid"] = json!(sippy_s / n4_s);
         value["speedup_all_families_vs_sippy_n4sid"] = json!(sippy_s / all_s);

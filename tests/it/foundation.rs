@@ -194,8 +194,16 @@ fn age(path: &std::path::Path, secs: u64) {
 fn bad_specs_are_refused_with_location_and_nothing_written() {
     let good = std::fs::read_to_string(crate::common::experiments().join(SPEC)).expect("spec");
     let cases: [(&str, String, &str); 6] = [
-        ("unknown key", good.replace("tau_s = 95.0", "tau_s = 95.0\ncolour = \"red\""), "thermal-first-order.toml:15:1: `plant.colour`: unknown field `colour`"),
-        ("wrong type", good.replace("tau_s = 95.0", "tau_s = \"slow\""), "thermal-first-order.toml:14:9: `plant.tau_s`: invalid type: string \"slow\", expected f64"),
+        (
+            "unknown key",
+            good.replace("tau_s = 95.0", "tau_s = 95.0\ncolour = \"red\""),
+            "thermal-first-order.toml:15:1: `plant.colour`: unknown field `colour`",
+        ),
+        (
+            "wrong type",
+            good.replace("tau_s = 95.0", "tau_s = \"slow\""),
+            "thermal-first-order.toml:14:9: `plant.tau_s`: invalid type: string \"slow\", expected f64",
+        ),
         ("out of range", good.replace("duty = 0.8", "duty = 1.5"), "thermal-first-order.toml:18:8: `protocol.duty`: must be in (0, 1]"),
         ("missing input file", good.replace("[identify]", "[data]\nlog = \"no-such-log.csv\"\n\n[identify]"), "`data.log`: input file"),
         ("unsafe name", good.replace("name = \"thermal-first-order\"", "name = \"../../x\""), "thermal-first-order.toml:6:8: `experiment.name`: must match"),
@@ -218,9 +226,15 @@ fn a_measured_log_is_identified_instead_of_the_twin() {
     let sb = Sandbox::new();
     let spec = copy_spec(&sb, SPEC);
     let twin = &sb.json(&["run", spec.to_str().expect("utf8")])[0];
-    let csv_hash = twin["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "log.csv").expect("log.csv")["hash"].as_str().expect("hash").to_string();
+    let csv_hash = twin["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "log.csv").expect("log.csv")["hash"]
+        .as_str()
+        .expect("hash")
+        .to_string();
     sb.write("measured.csv", &sb.ok(&["cat", &csv_hash]));
-    let text = std::fs::read_to_string(&spec).expect("spec").replace("name = \"thermal-first-order\"", "name = \"measured\"").replace("[identify]", "[data]\nlog = \"measured.csv\"\n\n[identify]");
+    let text = std::fs::read_to_string(&spec)
+        .expect("spec")
+        .replace("name = \"thermal-first-order\"", "name = \"measured\"")
+        .replace("[identify]", "[data]\nlog = \"measured.csv\"\n\n[identify]");
     let measured = sb.write("measured.toml", &text);
     let run = &sb.json(&["run", measured.to_str().expect("utf8")])[0];
     let names: Vec<&str> = run["stages"].as_array().expect("stages").iter().map(|s| s["name"].as_str().expect("name")).collect();

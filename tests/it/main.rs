@@ -3,5 +3,5 @@
 mod common;
 mod foundation;
 mod hbot;
-mod thermal;
 mod pa;
+mod thermal;

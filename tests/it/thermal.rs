@@ -9,7 +9,19 @@ const SOURCE_4_STATE: &str = r#"{"A":[[0.0008825,-0.002625,0.001638,-0.004195],[
 fn grid_identify_json_shape_and_cross_validation() {
     let sb = Sandbox::new();
     sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "3"]);
-    let v = sb.json(&["thermal", "identify", "grid/ident-1.csv", "--orders", "1..3", "--families", "arx,n4sid,tf,greybox", "--horizon", "10", "--verify", "grid/verif-2.csv"]);
+    let v = sb.json(&[
+        "thermal",
+        "identify",
+        "grid/ident-1.csv",
+        "--orders",
+        "1..3",
+        "--families",
+        "arx,n4sid,tf,greybox",
+        "--horizon",
+        "10",
+        "--verify",
+        "grid/verif-2.csv",
+    ]);
     // 1 log of the twin's step test: heat to 150 °C then 300 s off.
     let rows = v["rows"].as_u64().expect("rows");
     assert!(rows > 600, "{rows}");
@@ -161,7 +173,11 @@ fn gc_refuses_while_a_run_record_is_unreadable() {
     assert!(!out.status.success() && crate::common::stderr(&out).contains("run.json"), "{}", crate::common::stderr(&out));
     // Nothing was deleted: the blobs are all still there.
     std::fs::remove_dir_all(&dir).expect("drop the damaged run");
-    let total = std::fs::read_dir(sb.store().join("objects")).expect("objects").filter_map(|e| e.ok()).map(|d| std::fs::read_dir(d.path()).map(|f| f.count()).unwrap_or(0)).sum::<usize>();
+    let total = std::fs::read_dir(sb.store().join("objects"))
+        .expect("objects")
+        .filter_map(|e| e.ok())
+        .map(|d| std::fs::read_dir(d.path()).map(|f| f.count()).unwrap_or(0))
+        .sum::<usize>();
     assert_eq!(Some(total as u64), checked);
 }
 
@@ -190,7 +206,12 @@ fn unsafe_controllers_are_refused() {
 fn unreadable_inputs_are_bad_input_with_a_location() {
     let sb = Sandbox::new();
     std::fs::write(sb.path().join("latin1.csv"), b"time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,25\n1,0.5,0,\xb0C\n").expect("write");
-    for args in [&["thermal", "identify", "missing.csv"][..], &["thermal", "identify", "latin1.csv"], &["hbot", "steps", "missing.gcode"], &["taguchi", "analyze", "latin1.csv"]] {
+    for args in [
+        &["thermal", "identify", "missing.csv"][..],
+        &["thermal", "identify", "latin1.csv"],
+        &["hbot", "steps", "missing.gcode"],
+        &["taguchi", "analyze", "latin1.csv"],
+    ] {
         let out = sb.run(args);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {}", crate::common::stderr(&out));
     }

@@ -68,9 +68,7 @@ pub fn parse_line(raw: &str, line: usize, file: &str) -> Result<Option<Command>,
         return Ok(None);
     };
     let name = head.to_ascii_uppercase();
-    let classic = name.len() >= 2
-        && name.starts_with(['G', 'M', 'T'])
-        && name[1..].chars().all(|c| c.is_ascii_digit() || c == '.');
+    let classic = name.len() >= 2 && name.starts_with(['G', 'M', 'T']) && name[1..].chars().all(|c| c.is_ascii_digit() || c == '.');
     let mut cmd = Command { line, name, words: Vec::new(), args: Vec::new(), comment };
     for tok in tokens {
         if classic {
@@ -105,8 +103,8 @@ mod tests {
 
     #[test]
     fn reads_classic_and_extended_commands() {
-        let p = parse("G1 X10 Y-2.5 E0.3 F1200 ; fast\n\n; only comment\nSET_PRESSURE_ADVANCE ADVANCE=0.05\nN12 M900 K0.1*77\nG28 X", "t.gcode")
-            .expect("parses");
+        let p =
+            parse("G1 X10 Y-2.5 E0.3 F1200 ; fast\n\n; only comment\nSET_PRESSURE_ADVANCE ADVANCE=0.05\nN12 M900 K0.1*77\nG28 X", "t.gcode").expect("parses");
         assert_eq!(p.len(), 4);
         assert_eq!(p[0].word('X'), Some(10.0));
         assert_eq!(p[0].word('E'), Some(0.3));

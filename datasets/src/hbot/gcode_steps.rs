@@ -50,7 +50,9 @@ fn check_temperature(cmd: &Command, file: &str) -> Result<(), DatasetError> {
 /// move with an axis word that has no number (`G1 X Y10`).
 fn check_supported(cmd: &Command, file: &str) -> Result<(), DatasetError> {
     match cmd.name.as_str() {
-        "G2" | "G3" => return Err(DatasetError::parse(file, cmd.line, &cmd.name, format!("{} arcs are not supported; turn off arc fitting in the slicer", cmd.name))),
+        "G2" | "G3" => {
+            return Err(DatasetError::parse(file, cmd.line, &cmd.name, format!("{} arcs are not supported; turn off arc fitting in the slicer", cmd.name)))
+        }
         "G20" => return Err(DatasetError::parse(file, cmd.line, "G20", "inch units are not supported; use G21 (mm)")),
         _ => {}
     }

@@ -63,7 +63,13 @@ pub struct StepPlanner {
 impl StepPlanner {
     /// A planner at the origin, all extrusion on E0 until `set_mix`.
     pub fn new(cfg: StepConfig, file: &str) -> Result<Self, DatasetError> {
-        for (name, v) in [("steps_per_mm_xy", cfg.steps_per_mm_xy), ("steps_per_mm_z", cfg.steps_per_mm_z), ("steps_per_mm_e", cfg.steps_per_mm_e), ("bed_x", cfg.bed_mm[0]), ("bed_y", cfg.bed_mm[1])] {
+        for (name, v) in [
+            ("steps_per_mm_xy", cfg.steps_per_mm_xy),
+            ("steps_per_mm_z", cfg.steps_per_mm_z),
+            ("steps_per_mm_e", cfg.steps_per_mm_e),
+            ("bed_x", cfg.bed_mm[0]),
+            ("bed_y", cfg.bed_mm[1]),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(DatasetError::Refused(format!("{name} = {v} must be a positive number")));
             }

@@ -54,9 +54,11 @@ pub fn parse(text: &str, file: &str, response: &str) -> Result<TaguchiTable, Dat
         }
         let mut lv = Vec::with_capacity(factor_cols.len());
         for &c in &factor_cols {
-            let l: u8 = fields[c].parse().ok().filter(|l| (1..=MAX_LEVEL).contains(l)).ok_or_else(|| {
-                DatasetError::parse(file, line, &names[c], format!("`{}` is not a level 1..={MAX_LEVEL}", fields[c]))
-            })?;
+            let l: u8 = fields[c]
+                .parse()
+                .ok()
+                .filter(|l| (1..=MAX_LEVEL).contains(l))
+                .ok_or_else(|| DatasetError::parse(file, line, &names[c], format!("`{}` is not a level 1..={MAX_LEVEL}", fields[c])))?;
             lv.push(l);
         }
         table.levels.push(lv);
@@ -128,7 +130,8 @@ mod tests {
     fn template_parses_once_filled() {
         let names = vec!["T0".to_string(), "Kt".to_string()];
         let levels = vec![vec![1, 1], vec![1, 2], vec![2, 3]];
-        let filled: String = template(&names, &levels, "s").lines().enumerate().map(|(i, l)| if i == 0 { format!("{l}\n") } else { format!("{l}{i}\n") }).collect();
+        let filled: String =
+            template(&names, &levels, "s").lines().enumerate().map(|(i, l)| if i == 0 { format!("{l}\n") } else { format!("{l}{i}\n") }).collect();
         let t = parse(&filled, "t.csv", "s").expect("ok");
         assert_eq!(t.levels, levels);
         assert_eq!(t.response, vec![1.0, 2.0, 3.0]);

@@ -5,8 +5,7 @@ use fdmlab_models::hbot::Trajectory;
 use polars::prelude::*;
 
 /// Column names and units, in file order (lengths in mm for readability).
-pub const COLUMNS: [&str; 11] =
-    ["t_s", "x_mm", "y_mm", "vx_mm_s", "vy_mm_s", "phi1_rad", "omega1_rad_s", "phi2_rad", "omega2_rad_s", "x_cmd_mm", "y_cmd_mm"];
+pub const COLUMNS: [&str; 11] = ["t_s", "x_mm", "y_mm", "vx_mm_s", "vy_mm_s", "phi1_rad", "omega1_rad_s", "phi2_rad", "omega2_rad_s", "x_cmd_mm", "y_cmd_mm"];
 
 fn columns(tr: &Trajectory) -> [Vec<f64>; 11] {
     let mm = |v: &[f64]| v.iter().map(|x| x * 1e3).collect::<Vec<f64>>();

@@ -69,7 +69,11 @@ impl Firmware {
 pub fn fmt_k(k: f64) -> String {
     let s = format!("{:.4}", k);
     let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s.is_empty() || s == "-" { "0".into() } else { s.to_string() }
+    if s.is_empty() || s == "-" {
+        "0".into()
+    } else {
+        s.to_string()
+    }
 }
 
 fn fmt_int(v: f64) -> String {
@@ -127,7 +131,15 @@ pub struct Printer {
 impl Default for Printer {
     /// An Ender-3-class printer as in the source: 220 × 220 bed, 0.4 mm nozzle, 1.75 mm filament.
     fn default() -> Self {
-        Printer { firmware: Firmware::Marlin, bed_mm: [220.0, 220.0], max_z_mm: 250.0, nozzle_mm: 0.4, filament_mm: 1.75, max_hotend_c: 260.0, max_bed_c: 110.0 }
+        Printer {
+            firmware: Firmware::Marlin,
+            bed_mm: [220.0, 220.0],
+            max_z_mm: 250.0,
+            nozzle_mm: 0.4,
+            filament_mm: 1.75,
+            max_hotend_c: 260.0,
+            max_bed_c: 110.0,
+        }
     }
 }
 
@@ -217,12 +229,13 @@ pub struct Manifest {
 
 /// Decimals needed to print every K of the range exactly (at most 4).
 fn label_decimals(step: f64, start: f64) -> usize {
-    (0..=4).find(|&d| {
-        let s = 10f64.powi(d as i32);
-        ((step * s).round() - step * s).abs() < 1e-6 && ((start * s).round() - start * s).abs() < 1e-6
-    })
-    .unwrap_or(4)
-    .max(1)
+    (0..=4)
+        .find(|&d| {
+            let s = 10f64.powi(d as i32);
+            ((step * s).round() - step * s).abs() < 1e-6 && ((start * s).round() - start * s).abs() < 1e-6
+        })
+        .unwrap_or(4)
+        .max(1)
 }
 
 fn refuse(msg: impl Into<String>) -> DatasetError {
@@ -256,10 +269,7 @@ impl Emitter {
     fn check(&self, x: f64, y: f64, z: f64) -> Result<(), DatasetError> {
         let ok = |v: f64, hi: f64| v.is_finite() && (-1e-9..=hi + 1e-9).contains(&v);
         if !(ok(x, self.bed[0]) && ok(y, self.bed[1]) && ok(z, self.max_z)) {
-            return Err(refuse(format!(
-                "move to X{x:.3} Y{y:.3} Z{z:.3} leaves the printable volume {}×{}×{} mm",
-                self.bed[0], self.bed[1], self.max_z
-            )));
+            return Err(refuse(format!("move to X{x:.3} Y{y:.3} Z{z:.3} leaves the printable volume {}×{}×{} mm", self.bed[0], self.bed[1], self.max_z)));
         }
         Ok(())
     }
@@ -342,18 +352,26 @@ pub fn write(printer: &Printer, cal: &Calibration) -> Result<CalibrationGcode, D
         return Err(refuse(format!("layer {} mm exceeds 80 % of the {} mm nozzle", cal.layer_mm, printer.nozzle_mm)));
     }
     // Temperatures: the material's window and the printer's hardware limits.
-    let (t_min, t_max, bed_max) = material_limits(&cal.material)
-        .ok_or_else(|| refuse(format!("unknown material `{}` (known: PLA, PETG, ABS, ASA, TPU, PA, PC)", cal.material)))?;
+    let (t_min, t_max, bed_max) =
+        material_limits(&cal.material).ok_or_else(|| refuse(format!("unknown material `{}` (known: PLA, PETG, ABS, ASA, TPU, PA, PC)", cal.material)))?;
     if !(cal.hotend_c >= t_min && cal.hotend_c <= t_max.min(printer.max_hotend_c)) {
         return Err(refuse(format!(
             "hotend {} °C is outside {} °C–{} °C ({} window, printer limit {} °C)",
-            cal.hotend_c, t_min, t_max.min(printer.max_hotend_c), cal.material, printer.max_hotend_c
+            cal.hotend_c,
+            t_min,
+            t_max.min(printer.max_hotend_c),
+            cal.material,
+            printer.max_hotend_c
         )));
     }
     if !(cal.bed_c >= 0.0 && cal.bed_c <= bed_max.min(printer.max_bed_c)) {
         return Err(refuse(format!(
             "bed {} °C is outside 0–{} °C ({} limit {} °C, printer limit {} °C)",
-            cal.bed_c, bed_max.min(printer.max_bed_c), cal.material, bed_max, printer.max_bed_c
+            cal.bed_c,
+            bed_max.min(printer.max_bed_c),
+            cal.material,
+            bed_max,
+            printer.max_bed_c
         )));
     }
     // K range.
@@ -370,11 +388,13 @@ pub fn write(printer: &Printer, cal: &Calibration) -> Result<CalibrationGcode, D
     }
     let count = count_f as usize;
     let decimals = label_decimals(cal.k_step, cal.k_start);
-    let ks: Vec<f64> = (0..count).map(|i| {
-        let k = cal.k_start + cal.k_step * i as f64;
-        let s = 10f64.powi(decimals as i32);
-        (k * s).round() / s
-    }).collect();
+    let ks: Vec<f64> = (0..count)
+        .map(|i| {
+            let k = cal.k_start + cal.k_step * i as f64;
+            let s = 10f64.powi(decimals as i32);
+            (k * s).round() / s
+        })
+        .collect();
     if ks.windows(2).any(|w| w[1] <= w[0]) {
         return Err(refuse(format!("K step {} is finer than the 4 decimals the commands and labels carry", cal.k_step)));
     }
@@ -469,12 +489,19 @@ fn end_gcode(em: &mut Emitter, p: &Printer) -> Result<(), DatasetError> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn lines(em: &mut Emitter, p: &Printer, c: &Calibration, ks: &[f64], e_per_mm: f64, decimals: usize, width: f64, regions: &mut Vec<KRegion>) -> Result<(), DatasetError> {
+fn lines(
+    em: &mut Emitter,
+    p: &Printer,
+    c: &Calibration,
+    ks: &[f64],
+    e_per_mm: f64,
+    decimals: usize,
+    width: f64,
+    regions: &mut Vec<KRegion>,
+) -> Result<(), DatasetError> {
     let len = c.line.length_mm();
     let label_h = (0.7 * c.spacing_mm).min(5.0);
-    let label_w = super::digits::strokes(&format!("{:.*}", decimals, ks.last().copied().unwrap_or(0.0)), 0.0, 0.0, label_h)
-        .map(|s| s.1)
-        .unwrap_or(0.0);
+    let label_w = super::digits::strokes(&format!("{:.*}", decimals, ks.last().copied().unwrap_or(0.0)), 0.0, 0.0, label_h).map(|s| s.1).unwrap_or(0.0);
     let total_w = len + 3.0 + label_w;
     let total_h = c.spacing_mm * (ks.len() as f64 - 1.0) + label_h.max(width);
     let (bx, by) = (p.bed_mm[0] - 2.0 * EDGE_MARGIN_MM, p.bed_mm[1] - 2.0 * EDGE_MARGIN_MM);
@@ -510,14 +537,29 @@ fn tower_side(c: &Calibration) -> f64 {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn tower(em: &mut Emitter, p: &Printer, c: &Calibration, ks: &[f64], e_per_mm: f64, decimals: usize, width: f64, regions: &mut Vec<KRegion>) -> Result<(), DatasetError> {
+fn tower(
+    em: &mut Emitter,
+    p: &Printer,
+    c: &Calibration,
+    ks: &[f64],
+    e_per_mm: f64,
+    decimals: usize,
+    width: f64,
+    regions: &mut Vec<KRegion>,
+) -> Result<(), DatasetError> {
     // Each side of the square is one calibration line (slow, fast, slow), so every
     // layer has four corners and eight speed changes where the defect shows.
     let side = tower_side(c);
     let layers_per_band = (c.band_mm / c.layer_mm).round().max(1.0) as usize;
     let height = c.layer_mm * (layers_per_band * ks.len()) as f64;
     if height > p.max_z_mm - 10.0 {
-        return Err(refuse(format!("tower of {} bands × {} mm = {:.1} mm exceeds the printer's {} mm Z (less 10 mm)", ks.len(), c.band_mm, height, p.max_z_mm)));
+        return Err(refuse(format!(
+            "tower of {} bands × {} mm = {:.1} mm exceeds the printer's {} mm Z (less 10 mm)",
+            ks.len(),
+            c.band_mm,
+            height,
+            p.max_z_mm
+        )));
     }
     let label_h = 5.0;
     let label_col = 3.0 + super::digits::strokes(&format!("{:.*}", decimals, ks.last().copied().unwrap_or(0.0)), 0.0, 0.0, label_h).map(|s| s.1).unwrap_or(0.0);
@@ -633,10 +675,9 @@ mod tests {
 
     #[test]
     fn flavours_use_their_commands() {
-        for (fw, k, a) in [
-            (Firmware::Klipper, "SET_PRESSURE_ADVANCE ADVANCE=0.05", "SET_VELOCITY_LIMIT ACCEL=1000"),
-            (Firmware::Reprap, "M572 D0 S0.05", "M204 P1000 T1000"),
-        ] {
+        for (fw, k, a) in
+            [(Firmware::Klipper, "SET_PRESSURE_ADVANCE ADVANCE=0.05", "SET_VELOCITY_LIMIT ACCEL=1000"), (Firmware::Reprap, "M572 D0 S0.05", "M204 P1000 T1000")]
+        {
             let g = write(&Printer { firmware: fw, ..Printer::default() }, &Calibration::default()).expect("fits");
             assert!(g.text.contains(&format!("\n{k}\n")), "{fw:?}");
             assert!(g.text.contains(&format!("\n{a}\n")), "{fw:?}");
@@ -675,7 +716,12 @@ mod tests {
             // Extrusions in the band's Z range carry the band's K.
             let z0 = r.position_mm;
             let z1 = z0 + c.band_mm - 1e-6;
-            let band: Vec<_> = mv.iter().filter(|m| m.2[3] > m.1[3] && m.1[0] > EDGE_MARGIN_MM && m.2[2] >= z0 - 1e-9 && m.2[2] <= z1 && (m.2[0] - m.1[0]).abs() + (m.2[1] - m.1[1]).abs() > 5.0).collect();
+            let band: Vec<_> = mv
+                .iter()
+                .filter(|m| {
+                    m.2[3] > m.1[3] && m.1[0] > EDGE_MARGIN_MM && m.2[2] >= z0 - 1e-9 && m.2[2] <= z1 && (m.2[0] - m.1[0]).abs() + (m.2[1] - m.1[1]).abs() > 5.0
+                })
+                .collect();
             assert_eq!(band.len(), 5 * 12, "band {}", r.index);
             assert!(band.iter().all(|m| m.4 == Some(r.k) && m.5 == Some(1000.0)));
         }

@@ -195,10 +195,7 @@ pub fn export(model: &KaModel, format: ExportFormat, opts: &ExportOptions) -> Re
 
 /// Boundaries half-way between table temperatures: `K` of row i applies below `mid(i, i+1)`.
 fn bins(rows: &[(f64, f64)]) -> Vec<(Option<f64>, f64)> {
-    rows.iter()
-        .enumerate()
-        .map(|(i, &(_, k))| (rows.get(i + 1).map(|n| 0.5 * (rows[i].0 + n.0)), k))
-        .collect()
+    rows.iter().enumerate().map(|(i, &(_, k))| (rows.get(i + 1).map(|n| 0.5 * (rows[i].0 + n.0)), k)).collect()
 }
 
 /// Marlin has no conditionals, so the snippet uses the slicer's start-G-code macro
@@ -315,7 +312,14 @@ fn orca(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
     let given = |name: &str| opts.fixed.keys().any(|k| k.eq_ignore_ascii_case(name));
     // Material and temperature not fixed: the default material at the middle of its range.
     let mut base: Vec<(&str, String)> = Vec::new();
-    let material = opts.fixed.iter().find(|(k, _)| k.eq_ignore_ascii_case(&opts.material_column)).map(|(_, v)| v.clone()).or_else(|| opts.default_material.clone()).or_else(|| materials(model, opts).into_iter().next()).unwrap_or_default();
+    let material = opts
+        .fixed
+        .iter()
+        .find(|(k, _)| k.eq_ignore_ascii_case(&opts.material_column))
+        .map(|(_, v)| v.clone())
+        .or_else(|| opts.default_material.clone())
+        .or_else(|| materials(model, opts).into_iter().next())
+        .unwrap_or_default();
     if has(model, &opts.material_column) && !given(&opts.material_column) {
         base.push((opts.material_column.as_str(), material.clone()));
     }
@@ -445,8 +449,8 @@ mod tests {
     use super::*;
     use crate::pa::model::MODEL_SCHEMA;
     use crate::pa::table::load;
-    use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
     use fdmlab_models::nets::TrainConfig;
+    use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
 
     /// A quickly trained model on a slice of the twin's grid (direct drive, PLA/PETG).
     fn small_model() -> KaModel {
@@ -479,7 +483,10 @@ mod tests {
         let mut x: Vec<f64> = vec![];
         for mat in ["ABS", "PETG", "PLA"] {
             for (t, h) in [(203.3, 0.1), (231.0, 0.22), (250.0, 0.35)] {
-                let q: BTreeMap<String, String> = [("material", mat.to_string()), ("hotend_c", format!("{t}")), ("layer_mm", format!("{h}"))].into_iter().map(|(a, b)| (a.to_string(), b)).collect();
+                let q: BTreeMap<String, String> = [("material", mat.to_string()), ("hotend_c", format!("{t}")), ("layer_mm", format!("{h}"))]
+                    .into_iter()
+                    .map(|(a, b)| (a.to_string(), b))
+                    .collect();
                 x.extend(m.encoding.encode(&q).expect("encodes"));
             }
         }
@@ -537,7 +544,17 @@ mod tests {
         assert!(export(&m, ExportFormat::Marlin, &ExportOptions::default()).is_err());
         let j: serde_json::Value = serde_json::from_str(&export(&m, ExportFormat::Json, &opts()).expect("json")).expect("valid json");
         assert_eq!(j["layers"].as_array().map(Vec::len), Some(4));
-        let orca = export(&m, ExportFormat::Orca, &ExportOptions { fixed: [("layer_mm".to_string(), "0.2".to_string()), ("material".to_string(), "PLA".to_string()), ("hotend_c".to_string(), "215".to_string())].into_iter().collect(), ..opts() }).expect("orca");
+        let orca = export(
+            &m,
+            ExportFormat::Orca,
+            &ExportOptions {
+                fixed: [("layer_mm".to_string(), "0.2".to_string()), ("material".to_string(), "PLA".to_string()), ("hotend_c".to_string(), "215".to_string())]
+                    .into_iter()
+                    .collect(),
+                ..opts()
+            },
+        )
+        .expect("orca");
         assert_eq!(orca.lines().count(), 8 * 4);
         assert!(orca.lines().all(|l| l.split(',').count() == 3));
     }

@@ -81,9 +81,7 @@ pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> 
     if cells.is_empty() {
         return Err(DatasetError::parse(file, 2, "score", "no scores"));
     }
-    let scores = (0..manifest.regions.len())
-        .map(|g| (0..raters.len()).map(|ri| cells.get(&(g, ri)).copied()).collect())
-        .collect();
+    let scores = (0..manifest.regions.len()).map(|g| (0..raters.len()).map(|ri| cells.get(&(g, ri)).copied()).collect()).collect();
     let table = ScoreTable { k: manifest.regions.iter().map(|g| g.k).collect(), scores };
     let (w, n) = kendall_w(&table).map(|(w, n)| (Some(w), n)).unwrap_or((None, 0));
     let best = best_k(&table)?;

@@ -144,7 +144,12 @@ pub fn load(bytes: &[u8], file: &str, target: &str, features: Option<&[String]>)
         // (`2l5` for 215), not a category: name the first offending cell.
         if numbers < t.rows.len() && 2 * numbers > t.rows.len() {
             let r = (0..t.rows.len()).find(|&r| !is_number(r)).unwrap_or(0);
-            return Err(DatasetError::parse(file, r + 2, &name, format!("`{}` is not a number, but {numbers} of {} cells in this column are", cell(r, c), t.rows.len())));
+            return Err(DatasetError::parse(
+                file,
+                r + 2,
+                &name,
+                format!("`{}` is not a number, but {numbers} of {} cells in this column are", cell(r, c), t.rows.len()),
+            ));
         }
         if numbers == t.rows.len() {
             encoding.features.push(Feature::Numeric { name });
@@ -162,12 +167,8 @@ pub fn load(bytes: &[u8], file: &str, target: &str, features: Option<&[String]>)
     for r in 0..t.rows.len() {
         let values: BTreeMap<String, String> = fi.iter().map(|&c| (t.columns[c].trim().to_string(), cell(r, c))).collect();
         x.extend(encoding.encode(&values).map_err(|e| DatasetError::parse(file, r + 2, "features", e.to_string()))?);
-        let key: Vec<String> = encoding
-            .features
-            .iter()
-            .filter(|f| matches!(f, Feature::Categorical { .. }))
-            .map(|f| values.get(f.name()).cloned().unwrap_or_default())
-            .collect();
+        let key: Vec<String> =
+            encoding.features.iter().filter(|f| matches!(f, Feature::Categorical { .. })).map(|f| values.get(f.name()).cloned().unwrap_or_default()).collect();
         let next = group_ids.len() as u32;
         group.push(*group_ids.entry(key.join("\u{1f}")).or_insert(next));
         raw.push(fi.iter().map(|&c| cell(r, c)).collect());
@@ -220,7 +221,8 @@ mod tests {
         assert_eq!(t.design.feature_names, vec!["material=PETG", "material=PLA", "hotend_c", "extruder=bowden", "extruder=direct"]);
         assert_eq!(t.design.row(0), &[0.0, 1.0, 200.0, 1.0, 0.0]);
         assert_eq!(t.design.group, vec![0, 1, 2]);
-        let q: BTreeMap<String, String> = [("material", "petg"), ("hotend_c", "220"), ("extruder", "direct")].iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
+        let q: BTreeMap<String, String> =
+            [("material", "petg"), ("hotend_c", "220"), ("extruder", "direct")].iter().map(|(a, b)| (a.to_string(), b.to_string())).collect();
         assert_eq!(t.encoding.encode(&q).expect("known levels"), vec![1.0, 0.0, 220.0, 0.0, 1.0]);
         let sup = t.support();
         let pla = sup.iter().find(|s| s.level == "PLA").expect("PLA");

@@ -20,7 +20,8 @@ const OPTIONAL: [&str; 4] = ["target_c", "head_height", "ambient_c", "extrude_mm
 /// Parse log CSV text.
 pub fn parse(text: &str, file: &str) -> Result<RawLog, DatasetError> {
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let (header_line, header) = lines.next().ok_or_else(|| DatasetError::parse(file, 1, "header", "empty file: expected a header time_s,heater_duty,fan_duty,temperature_c"))?;
+    let (header_line, header) =
+        lines.next().ok_or_else(|| DatasetError::parse(file, 1, "header", "empty file: expected a header time_s,heater_duty,fan_duty,temperature_c"))?;
     let names: Vec<String> = header.trim_start_matches('\u{feff}').split(',').map(|s| s.trim().to_string()).collect();
     let find = |n: &str| names.iter().position(|h| h == n);
     for r in REQUIRED {

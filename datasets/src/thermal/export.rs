@@ -101,10 +101,22 @@ fn finite(values: &[(&str, f64)]) -> Result<(), DatasetError> {
 
 /// `M306 P… C… R… A… F… H…`.
 pub fn marlin_mpc(p: &MpcPhysics, note: &str) -> Result<String, DatasetError> {
-    finite(&[("P", p.heater_power_w), ("C", p.block_heat_capacity_j_k), ("R", p.sensor_responsiveness), ("A", p.ambient_transfer_w_k), ("F", p.fan_ambient_transfer_w_k), ("H", p.filament_heat_capacity_j_k_mm)])?;
+    finite(&[
+        ("P", p.heater_power_w),
+        ("C", p.block_heat_capacity_j_k),
+        ("R", p.sensor_responsiveness),
+        ("A", p.ambient_transfer_w_k),
+        ("F", p.fan_ambient_transfer_w_k),
+        ("H", p.filament_heat_capacity_j_k_mm),
+    ])?;
     Ok(format!(
         "; {note}\nM306 E0 P{:.2} C{:.4} R{:.6} A{:.6} F{:.6} H{:.6}\nM500 ; save to EEPROM\n",
-        p.heater_power_w, p.block_heat_capacity_j_k, p.sensor_responsiveness, p.ambient_transfer_w_k, p.fan_ambient_transfer_w_k, p.filament_heat_capacity_j_k_mm
+        p.heater_power_w,
+        p.block_heat_capacity_j_k,
+        p.sensor_responsiveness,
+        p.ambient_transfer_w_k,
+        p.fan_ambient_transfer_w_k,
+        p.filament_heat_capacity_j_k_mm
     ))
 }
 
@@ -131,7 +143,8 @@ pub fn klipper_pid(pid: &Pid, note: &str) -> Result<String, DatasetError> {
 /// `[extruder]` MPC block; fan transfer listed at 0, 25, 50, 75, 100 % fan.
 pub fn klipper_mpc(p: &MpcPhysics, note: &str) -> Result<String, DatasetError> {
     finite(&[("heater_power", p.heater_power_w), ("block_heat_capacity", p.block_heat_capacity_j_k), ("sensor_responsiveness", p.sensor_responsiveness)])?;
-    let fan: Vec<String> = (0..5).map(|i| format!("{:.6}", p.ambient_transfer_w_k + (p.fan_ambient_transfer_w_k - p.ambient_transfer_w_k) * i as f64 / 4.0)).collect();
+    let fan: Vec<String> =
+        (0..5).map(|i| format!("{:.6}", p.ambient_transfer_w_k + (p.fan_ambient_transfer_w_k - p.ambient_transfer_w_k) * i as f64 / 4.0)).collect();
     Ok(format!(
         "# {note}\n# Kalico / Danger-Klipper MPC (mainline Klipper has no MPC)\n[extruder]\ncontrol: mpc\nheater_power: {:.2}\ncooling_fan: fan\nblock_heat_capacity: {:.4}\nsensor_responsiveness: {:.6}\nambient_transfer: {:.6}\nfan_ambient_transfer: {}\n",
         p.heater_power_w,
@@ -180,7 +193,15 @@ mod tests {
     use fdmlab_models::thermal::control::PlacementMethod;
 
     fn rates() -> Rates {
-        Rates { heat_k_s: 0.5, loss_1_s: 0.002, fan_loss_1_s: 0.00125, near_loss_1_s: 0.0, near_scale: 15.0, sensor_tau_s: 8.0, extrude_loss_1_s_per_mm3_s: 0.0 }
+        Rates {
+            heat_k_s: 0.5,
+            loss_1_s: 0.002,
+            fan_loss_1_s: 0.00125,
+            near_loss_1_s: 0.0,
+            near_scale: 15.0,
+            sensor_tau_s: 8.0,
+            extrude_loss_1_s_per_mm3_s: 0.0,
+        }
     }
 
     #[test]
@@ -207,7 +228,15 @@ mod tests {
     #[test]
     fn reprap_and_c_header() {
         assert!(reprap(&rates(), 6.5, "n").expect("m307").contains("M307 H1 R0.500 K0.200:0.125 D6.50 E1.00 S1.00 B0"));
-        let p = Placement { l: vec![1.5, -2.0], m: 0.25, closed_loop_poles: vec![], requested_poles: vec![[-0.1, 0.0], [-0.1, 0.0]], method: PlacementMethod::Ackermann, dt_s: None, controllability_condition: 1.0 };
+        let p = Placement {
+            l: vec![1.5, -2.0],
+            m: 0.25,
+            closed_loop_poles: vec![],
+            requested_poles: vec![[-0.1, 0.0], [-0.1, 0.0]],
+            method: PlacementMethod::Ackermann,
+            dt_s: None,
+            controllability_condition: 1.0,
+        };
         let h = c_header(&p, "greybox-2").expect("header");
         assert!(h.contains("fdmlab_thermal_L[FDMLAB_THERMAL_STATES] = { 1.5e0, -2e0 };") && h.contains("fdmlab_thermal_M = 2.5e-1;"), "{h}");
         assert!(Format::parse("marlin-mpc").is_ok() && Format::parse("nope").is_err());

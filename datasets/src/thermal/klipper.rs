@@ -35,7 +35,11 @@ pub fn parse(text: &str, file: &str, heater: &str) -> Result<RawLog, DatasetErro
             let field = format!("{heater}.{k}");
             let parse = || -> Result<f64, DatasetError> {
                 let x: f64 = v.parse().map_err(|_| DatasetError::parse(file, row, &field, format!("`{v}` is not a number")))?;
-                if x.is_finite() { Ok(x) } else { Err(DatasetError::parse(file, row, &field, format!("`{v}` is not finite"))) }
+                if x.is_finite() {
+                    Ok(x)
+                } else {
+                    Err(DatasetError::parse(file, row, &field, format!("`{v}` is not finite")))
+                }
             };
             match k {
                 "target" => target = Some(parse()?),

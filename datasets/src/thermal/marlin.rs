@@ -75,7 +75,11 @@ fn report(payload: &str, file: &str, line: usize) -> Result<Option<(f64, Option<
     let Some(at) = tokens.iter().find(|t| t.starts_with("@:")) else { return Ok(None) };
     let num = |s: &str, field: &str| -> Result<f64, DatasetError> {
         let v: f64 = s.parse().map_err(|_| DatasetError::parse(file, line, field, format!("`{s}` is not a number")))?;
-        if v.is_finite() { Ok(v) } else { Err(DatasetError::parse(file, line, field, format!("`{s}` is not finite"))) }
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(DatasetError::parse(file, line, field, format!("`{s}` is not finite")))
+        }
     };
     let temp = num(&tokens[ti][2..], "T")?;
     let target = match tokens.get(ti + 1) {
@@ -118,7 +122,11 @@ pub fn parse(text: &str, file: &str, opts: &MarlinOptions) -> Result<RawLog, Dat
                         Some(c) if c == "M106" => {
                             let s = cmd.iter().find(|w| w.starts_with('S')).map(|w| w[1..].split('*').next().unwrap_or("").to_string());
                             let v = match s {
-                                Some(s) => s.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| DatasetError::parse(file, row, "M106 S", format!("`{s}` is not a number")))?,
+                                Some(s) => s
+                                    .parse::<f64>()
+                                    .ok()
+                                    .filter(|v| v.is_finite())
+                                    .ok_or_else(|| DatasetError::parse(file, row, "M106 S", format!("`{s}` is not a number")))?,
                                 None => 255.0,
                             };
                             fan = (v / 255.0).clamp(0.0, 1.0);
@@ -152,7 +160,14 @@ pub fn parse(text: &str, file: &str, opts: &MarlinOptions) -> Result<RawLog, Dat
         let t = match time {
             Some(t) => t,
             None => {
-                let interval = opts.interval_s.ok_or_else(|| DatasetError::parse(file, row, "timestamp", "bare Marlin log has no time stamps: give the auto-report interval (M155 S…, e.g. --interval 1)"))?;
+                let interval = opts.interval_s.ok_or_else(|| {
+                    DatasetError::parse(
+                        file,
+                        row,
+                        "timestamp",
+                        "bare Marlin log has no time stamps: give the auto-report interval (M155 S…, e.g. --interval 1)",
+                    )
+                })?;
                 log.time_s.len() as f64 * interval
             }
         };
@@ -195,7 +210,8 @@ mod tests {
 
     #[test]
     fn bare_log_needs_an_interval() {
-        let text = "echo:busy\nok T:25.00 /150.00 B:22.00 /0.00 @:127 B@:0\n T:26.10 /150.00 B:22.00 /0.00 @:127 B@:0 W:?\n T:27.00 /150.00 B:22.00 /0.00 @:64 B@:0\n";
+        let text =
+            "echo:busy\nok T:25.00 /150.00 B:22.00 /0.00 @:127 B@:0\n T:26.10 /150.00 B:22.00 /0.00 @:127 B@:0 W:?\n T:27.00 /150.00 B:22.00 /0.00 @:64 B@:0\n";
         let err = parse(text, "s.log", &MarlinOptions::default()).expect_err("no interval").to_string();
         assert!(err.starts_with("s.log:2: timestamp"), "{err}");
         let log = parse(text, "s.log", &MarlinOptions { interval_s: Some(1.0), pwm_max: 127.0 }).expect("parse");

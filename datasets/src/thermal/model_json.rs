@@ -55,7 +55,11 @@ pub fn parse(text: &str, file: &str) -> Result<StateSpace, DatasetError> {
         return Err(DatasetError::parse(file, 1, "A", format!("must be square; got {n} rows of lengths {:?}", a.iter().map(Vec::len).collect::<Vec<_>>())));
     }
     let b_raw = rows(get("B")?, file, "B")?;
-    let b: Vec<Vec<f64>> = if b_raw.len() == n { b_raw } else { return Err(DatasetError::parse(file, 1, "B", format!("needs {n} entries (one per state), got {}", b_raw.len()))) };
+    let b: Vec<Vec<f64>> = if b_raw.len() == n {
+        b_raw
+    } else {
+        return Err(DatasetError::parse(file, 1, "B", format!("needs {n} entries (one per state), got {}", b_raw.len())));
+    };
     let c = numbers(get("C")?, file, "C")?;
     if c.len() != n {
         return Err(DatasetError::parse(file, 1, "C", format!("needs {n} entries, got {}", c.len())));
@@ -65,7 +69,11 @@ pub fn parse(text: &str, file: &str) -> Result<StateSpace, DatasetError> {
         None | Some(Value::Null) => vec![0.0; inputs],
         Some(x) => {
             let d = numbers(x, file, "D")?;
-            if d.len() == 1 && inputs > 1 && d[0] == 0.0 { vec![0.0; inputs] } else { d }
+            if d.len() == 1 && inputs > 1 && d[0] == 0.0 {
+                vec![0.0; inputs]
+            } else {
+                d
+            }
         }
     };
     if d.len() != inputs {

@@ -60,7 +60,10 @@ fn check(g: &StepTestGcode, runs: &[GridRun]) -> Result<(), DatasetError> {
     }
     for r in runs {
         if !(r.target_c.is_finite() && r.target_c > g.start_c && r.target_c <= g.max_hotend_c) {
-            return Err(DatasetError::Refused(format!("run {}: target {} °C must exceed the start temperature {} °C and not exceed the limit {} °C", r.name, r.target_c, g.start_c, g.max_hotend_c)));
+            return Err(DatasetError::Refused(format!(
+                "run {}: target {} °C must exceed the start temperature {} °C and not exceed the limit {} °C",
+                r.name, r.target_c, g.start_c, g.max_hotend_c
+            )));
         }
         if !(0.0..=1.0).contains(&r.fan_duty) {
             return Err(DatasetError::Refused(format!("run {}: fan duty {} outside 0..1", r.name, r.fan_duty)));
@@ -118,7 +121,17 @@ mod tests {
     use fdmlab_models::thermal::twin::{identification_grid, verification_grid};
 
     fn machine() -> StepTestGcode {
-        StepTestGcode { bed_mm: [200.0, 200.0], max_z_mm: 180.0, max_hotend_c: 260.0, park_mm: [100.0, 100.0], mm_per_height_unit: 1.0, min_z_mm: 0.5, hold_s: 60.0, start_c: 40.0, report_s: 1 }
+        StepTestGcode {
+            bed_mm: [200.0, 200.0],
+            max_z_mm: 180.0,
+            max_hotend_c: 260.0,
+            park_mm: [100.0, 100.0],
+            mm_per_height_unit: 1.0,
+            min_z_mm: 0.5,
+            hold_s: 60.0,
+            start_c: 40.0,
+            report_s: 1,
+        }
     }
 
     #[test]

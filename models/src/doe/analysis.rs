@@ -200,8 +200,13 @@ mod tests {
         assert_eq!(ranks, vec![1, 3, 2]);
         assert!((a.factors[0].level_means[2] - 59.0 / 3.0).abs() < 1e-12);
         // With only A and C in the model, the published prediction 21.67.
-        let ac = analyze(&names[..1].iter().chain(&names[2..]).cloned().collect::<Vec<_>>(), &OrthogonalArray::l9().select(&[1, 4]).expect("cols"), &Y, Sense::LargerBetter)
-            .expect("analysis");
+        let ac = analyze(
+            &names[..1].iter().chain(&names[2..]).cloned().collect::<Vec<_>>(),
+            &OrthogonalArray::l9().select(&[1, 4]).expect("cols"),
+            &Y,
+            Sense::LargerBetter,
+        )
+        .expect("analysis");
         assert!((ac.predicted_optimum - 21.6667).abs() < 1e-3, "{}", ac.predicted_optimum);
     }
 

@@ -75,33 +75,15 @@ impl Material {
     /// softer than μ's own slope because the melt carries only part of the compliance.
     pub fn props(self) -> MaterialProps {
         match self {
-            Material::Abs => MaterialProps {
-                hotend_min_c: 230.0,
-                hotend_max_c: 260.0,
-                bed_c: 110.0,
-                hotend_limit_c: 275.0,
-                k_rel: 0.85,
-                t_ref_c: 245.0,
-                beta_per_c: 0.010,
-            },
-            Material::Pla => MaterialProps {
-                hotend_min_c: 200.0,
-                hotend_max_c: 230.0,
-                bed_c: 60.0,
-                hotend_limit_c: 250.0,
-                k_rel: 1.0,
-                t_ref_c: 215.0,
-                beta_per_c: 0.012,
-            },
-            Material::Petg => MaterialProps {
-                hotend_min_c: 220.0,
-                hotend_max_c: 260.0,
-                bed_c: 85.0,
-                hotend_limit_c: 270.0,
-                k_rel: 1.5,
-                t_ref_c: 240.0,
-                beta_per_c: 0.011,
-            },
+            Material::Abs => {
+                MaterialProps { hotend_min_c: 230.0, hotend_max_c: 260.0, bed_c: 110.0, hotend_limit_c: 275.0, k_rel: 0.85, t_ref_c: 245.0, beta_per_c: 0.010 }
+            }
+            Material::Pla => {
+                MaterialProps { hotend_min_c: 200.0, hotend_max_c: 230.0, bed_c: 60.0, hotend_limit_c: 250.0, k_rel: 1.0, t_ref_c: 215.0, beta_per_c: 0.012 }
+            }
+            Material::Petg => {
+                MaterialProps { hotend_min_c: 220.0, hotend_max_c: 260.0, bed_c: 85.0, hotend_limit_c: 270.0, k_rel: 1.5, t_ref_c: 240.0, beta_per_c: 0.011 }
+            }
         }
     }
 }

@@ -93,12 +93,7 @@ pub fn k_values(start: f64, end: f64, step: f64) -> Vec<f64> {
 
 /// Calibrate one condition: coarse print, then a fine print of step/10 over ±2 coarse
 /// steps around the coarse estimate; returns the fine estimate.
-pub fn calibrate(
-    c: &Conditions,
-    pattern: &LinePattern,
-    raters: &[Rater],
-    rng: &mut crate::rng::Rng,
-) -> Result<BestK, ModelError> {
+pub fn calibrate(c: &Conditions, pattern: &LinePattern, raters: &[Rater], rng: &mut crate::rng::Rng) -> Result<BestK, ModelError> {
     c.check()?;
     let k_true = c.true_k_s();
     let (start, end, step) = coarse_range(c.extruder);
@@ -148,11 +143,7 @@ mod tests {
         // the bound 0.012 s is 1.2 fine steps, the worst case of 3 raters rounding.
         let cfg = GridConfig::default();
         let raters = Rater::panel(3, 0.3, 0.5, &mut crate::rng::seeded(7, 0));
-        for (i, c) in source_conditions(&[Extruder::Bowden])
-            .iter()
-            .filter(|c| c.material == Material::Pla && c.layer_mm == 0.2)
-            .enumerate()
-        {
+        for (i, c) in source_conditions(&[Extruder::Bowden]).iter().filter(|c| c.material == Material::Pla && c.layer_mm == 0.2).enumerate() {
             let b = calibrate(c, &cfg.pattern, &raters, &mut crate::rng::seeded(7, i as u64 + 1));
             let k = b.map(|b| b.k).unwrap_or(f64::NAN);
             assert!((k - c.true_k_s()).abs() < 0.012, "{c:?}: {k} vs {}", c.true_k_s());

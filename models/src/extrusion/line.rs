@@ -141,14 +141,7 @@ pub struct WidthSample {
 /// Within each constant-acceleration phase the feed is linear in time and the lag
 /// is solved in closed form, so the result does not depend on `dt_s` (only where it
 /// is sampled). Starts in steady state (u = v⁰): the slow segment precedes the ramp.
-pub fn simulate_width(
-    pattern: &LinePattern,
-    k_true_s: f64,
-    k_applied_s: f64,
-    t0_s: f64,
-    t1_s: f64,
-    dt_s: f64,
-) -> Result<Vec<WidthSample>, ModelError> {
+pub fn simulate_width(pattern: &LinePattern, k_true_s: f64, k_applied_s: f64, t0_s: f64, t1_s: f64, dt_s: f64) -> Result<Vec<WidthSample>, ModelError> {
     pattern.check()?;
     if !(k_true_s.is_finite() && k_true_s > 0.0) {
         return Err(ModelError::invalid("k_true_s", k_true_s, "must be positive"));

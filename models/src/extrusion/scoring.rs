@@ -36,9 +36,7 @@ impl Rater {
     /// A panel of `n` raters with biases drawn from N(0, bias_sd).
     pub fn panel(n: usize, bias_sd: f64, noise_sd: f64, rng: &mut crate::rng::Rng) -> Vec<Rater> {
         let bias = Normal::new(0.0, bias_sd.max(0.0)).ok();
-        (0..n)
-            .map(|_| Rater { bias: bias.map(|b| b.sample(rng)).unwrap_or(0.0), noise_sd })
-            .collect()
+        (0..n).map(|_| Rater { bias: bias.map(|b| b.sample(rng)).unwrap_or(0.0), noise_sd }).collect()
     }
 }
 
@@ -69,8 +67,7 @@ impl ScoreTable {
 /// raters or two complete lines, or when every rater gave one score to every line.
 pub fn kendall_w(table: &ScoreTable) -> Option<(f64, usize)> {
     let raters = table.scores.iter().map(Vec::len).max().unwrap_or(0);
-    let complete: Vec<&Vec<Option<f64>>> =
-        table.scores.iter().filter(|r| r.len() == raters && r.iter().all(Option::is_some)).collect();
+    let complete: Vec<&Vec<Option<f64>>> = table.scores.iter().filter(|r| r.len() == raters && r.iter().all(Option::is_some)).collect();
     let n = complete.len();
     if raters < 2 || n < 2 {
         return None;
@@ -143,16 +140,12 @@ pub fn best_k(table: &ScoreTable) -> Result<BestK, ModelError> {
     if table.k.len() != means.len() {
         return Err(ModelError::Shape(format!("{} K values for {} lines", table.k.len(), means.len())));
     }
-    let pts: Vec<(f64, f64)> =
-        table.k.iter().zip(&means).filter_map(|(&k, m)| m.map(|m| (k, m))).collect();
+    let pts: Vec<(f64, f64)> = table.k.iter().zip(&means).filter_map(|(&k, m)| m.map(|m| (k, m))).collect();
     if pts.is_empty() {
         return Err(ModelError::Shape("no scored lines".into()));
     }
-    let (ib, &(kb, sb)) = pts
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1).then(b.0.cmp(&a.0)))
-        .ok_or_else(|| ModelError::Shape("no scored lines".into()))?;
+    let (ib, &(kb, sb)) =
+        pts.iter().enumerate().max_by(|a, b| a.1 .1.total_cmp(&b.1 .1).then(b.0.cmp(&a.0))).ok_or_else(|| ModelError::Shape("no scored lines".into()))?;
     let best_line = table.k.iter().position(|&k| k == kb).unwrap_or(0);
     let step = typical_step(&table.k);
     let fallback = BestK { k: kb, k_sd: step / 2.0, best_line, window: 0, peak_score: sb };
@@ -201,13 +194,7 @@ pub fn best_k(table: &ScoreTable) -> Result<BestK, ModelError> {
     // Delta method: ∂xv/∂c1 = −1/(2c2), ∂xv/∂c2 = c1/(2c2²).
     let g = Vector3::new(0.0, -1.0 / (2.0 * c2), c1 / (2.0 * c2 * c2));
     let var = (g.transpose() * cov * g)[(0, 0)].max(0.0);
-    Ok(BestK {
-        k: kb + xv * step,
-        k_sd: var.sqrt() * step,
-        best_line,
-        window: win.len(),
-        peak_score: c[0] + c1 * xv + c2 * xv * xv,
-    })
+    Ok(BestK { k: kb + xv * step, k_sd: var.sqrt() * step, best_line, window: win.len(), peak_score: c[0] + c1 * xv + c2 * xv * xv })
 }
 
 /// Median spacing of consecutive K values (the pattern's step).
@@ -221,13 +208,7 @@ fn typical_step(k: &[f64]) -> f64 {
 }
 
 /// Score every line of a print with K_A values `k` for a plant of constant `k_true_s`.
-pub fn simulate_print(
-    pattern: &super::LinePattern,
-    k_true_s: f64,
-    k: &[f64],
-    raters: &[Rater],
-    rng: &mut crate::rng::Rng,
-) -> Result<ScoreTable, ModelError> {
+pub fn simulate_print(pattern: &super::LinePattern, k_true_s: f64, k: &[f64], raters: &[Rater], rng: &mut crate::rng::Rng) -> Result<ScoreTable, ModelError> {
     let mut scores = Vec::with_capacity(k.len());
     for &ka in k {
         let d = super::line_defect(pattern, k_true_s, ka)?;
@@ -249,10 +230,7 @@ mod tests {
             scores: vec![vec![Some(1.0), Some(2.0)], vec![Some(2.0), Some(3.0)], vec![Some(3.0), Some(4.0)], vec![Some(4.0), Some(5.0)]],
         };
         assert!((kendall_w(&same).map(|w| w.0).unwrap_or(f64::NAN) - 1.0).abs() < 1e-12);
-        let rev = ScoreTable {
-            k: vec![0.0, 0.1, 0.2],
-            scores: vec![vec![Some(1.0), Some(3.0)], vec![Some(2.0), Some(2.0)], vec![Some(3.0), Some(1.0)]],
-        };
+        let rev = ScoreTable { k: vec![0.0, 0.1, 0.2], scores: vec![vec![Some(1.0), Some(3.0)], vec![Some(2.0), Some(2.0)], vec![Some(3.0), Some(1.0)]] };
         assert!(kendall_w(&rev).map(|w| w.0).unwrap_or(f64::NAN).abs() < 1e-12);
         // 3 raters, 4 items, hand-computed: ranks (1,2,3,4),(1,3,2,4),(2,1,3,4):
         // R = 4,6,8,12, mean 7.5, S = 12.25+2.25+0.25+20.25 = 35, W = 12·35/(9·60) = 0.7778.

@@ -65,7 +65,16 @@ pub struct CompensationReport {
 /// laser without compensation, with the plain and with the iterated compensation
 /// computed on `model` (the identified parameters); the machine is `truth`.
 #[allow(clippy::too_many_arguments)] // each argument is one of the source's protocol settings
-pub fn evaluate(truth: &HbotParams, model: &HbotParams, axis: Axis, speed_m_s: f64, stops_s: &[f64], iterations: usize, sensor: &LaserSensor, seed: u64) -> Result<CompensationReport, ModelError> {
+pub fn evaluate(
+    truth: &HbotParams,
+    model: &HbotParams,
+    axis: Axis,
+    speed_m_s: f64,
+    stops_s: &[f64],
+    iterations: usize,
+    sensor: &LaserSensor,
+    seed: u64,
+) -> Result<CompensationReport, ModelError> {
     if !(speed_m_s.is_finite() && speed_m_s > 0.0) {
         return Err(ModelError::invalid("speed", speed_m_s, "must be > 0"));
     }

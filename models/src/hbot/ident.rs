@@ -228,7 +228,17 @@ pub fn taguchi(base: &HbotParams, factors: &[Factor], data: &[Measurement], arra
     let optimum = set(&optimum_levels);
     let confirmation_s_mm = objective_mm(&optimum, data)?;
     let best_run_s_mm = s.iter().copied().fold(f64::INFINITY, f64::min);
-    Ok(TaguchiResult { array: array.name.clone(), columns, factors: factors.to_vec(), runs, analysis, optimum_levels, optimum, confirmation_s_mm, best_run_s_mm })
+    Ok(TaguchiResult {
+        array: array.name.clone(),
+        columns,
+        factors: factors.to_vec(),
+        runs,
+        analysis,
+        optimum_levels,
+        optimum,
+        confirmation_s_mm,
+        best_run_s_mm,
+    })
 }
 
 /// Factors of a second round: centred on the first round's optimum value with the

@@ -160,7 +160,8 @@ pub struct TaguchiStudy {
 /// Run the Taguchi rounds from the initial estimates.
 pub fn run_taguchi(cfg: &StudyConfig, data: &StudyData) -> Result<TaguchiStudy, ModelError> {
     let bridge = taguchi(&cfg.initial, &cfg.bridge_factors, &data.y, &OrthogonalArray::l27())?;
-    let bridge_second = if cfg.second_round { Some(taguchi(&bridge.optimum, &refine_factors(&bridge, cfg.shrink), &data.y, &OrthogonalArray::l27())?) } else { None };
+    let bridge_second =
+        if cfg.second_round { Some(taguchi(&bridge.optimum, &refine_factors(&bridge, cfg.shrink), &data.y, &OrthogonalArray::l27())?) } else { None };
     let mut params = match &bridge_second {
         Some(b2) if b2.confirmation_s_mm < bridge.confirmation_s_mm => b2.optimum,
         _ => bridge.optimum,

@@ -127,12 +127,7 @@ impl KaNet {
         if l.len() != 4 || l.windows(2).any(|p| p[0].outputs != p[1].inputs) || l[3].outputs != 1 {
             return Err(ModelError::Shape("expected 4 chained dense layers ending in one output".into()));
         }
-        Ok(KaNet {
-            l1: dense(&l[0], 0, device)?,
-            l2: dense(&l[1], 1, device)?,
-            l3: dense(&l[2], 2, device)?,
-            out: dense(&l[3], 3, device)?,
-        })
+        Ok(KaNet { l1: dense(&l[0], 0, device)?, l2: dense(&l[1], 1, device)?, l3: dense(&l[2], 2, device)?, out: dense(&l[3], 3, device)? })
     }
 
     /// Plain weights, for artifacts and exports.

@@ -82,24 +82,14 @@ pub const KNN_K: usize = 5;
 impl Knn {
     pub fn fit(d: &Design, rows: &[usize], k: usize) -> Knn {
         let scale = MinMax::fit_features(d, rows);
-        Knn {
-            k: k.max(1),
-            x: rows.iter().map(|&i| scale.scale_row(d.row(i))).collect(),
-            y: rows.iter().map(|&i| d.y[i]).collect(),
-            scale,
-        }
+        Knn { k: k.max(1), x: rows.iter().map(|&i| scale.scale_row(d.row(i))).collect(), y: rows.iter().map(|&i| d.y[i]).collect(), scale }
     }
 }
 
 impl Regressor for Knn {
     fn predict_row(&self, x: &[f64]) -> f64 {
         let q = self.scale.scale_row(x);
-        let mut dist: Vec<(f64, usize)> = self
-            .x
-            .iter()
-            .enumerate()
-            .map(|(i, r)| (r.iter().zip(&q).map(|(a, b)| (a - b) * (a - b)).sum::<f64>(), i))
-            .collect();
+        let mut dist: Vec<(f64, usize)> = self.x.iter().enumerate().map(|(i, r)| (r.iter().zip(&q).map(|(a, b)| (a - b) * (a - b)).sum::<f64>(), i)).collect();
         let k = self.k.min(dist.len());
         if k == 0 {
             return f64::NAN;

@@ -64,11 +64,8 @@ pub fn cross_validate(d: &Design, k: usize, seed: u64, mlp: &MlpSettings) -> Res
             pred[3][i] = knn.predict_row(d.row(i));
         }
     }
-    let models = MODEL_NAMES
-        .iter()
-        .zip(&pred)
-        .map(|(name, p)| ModelScore { name: name.to_string(), mae: mae(&d.y, p), max_error: max_abs_error(&d.y, p) })
-        .collect();
+    let models =
+        MODEL_NAMES.iter().zip(&pred).map(|(name, p)| ModelScore { name: name.to_string(), mae: mae(&d.y, p), max_error: max_abs_error(&d.y, p) }).collect();
     Ok(CvReport { folds: k, rows: n, models, predictions: pred })
 }
 

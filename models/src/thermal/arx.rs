@@ -56,14 +56,31 @@ impl Polynomials {
             return true;
         }
         let n = self.a.len();
-        let comp = DMatrix::from_fn(n, n, |i, j| if i == 0 { -self.a[j] } else if i == j + 1 { 1.0 } else { 0.0 });
+        let comp = DMatrix::from_fn(n, n, |i, j| {
+            if i == 0 {
+                -self.a[j]
+            } else if i == j + 1 {
+                1.0
+            } else {
+                0.0
+            }
+        });
         eigenvalues(&comp).map(|p| inside_unit_circle(&p)).unwrap_or(false)
     }
 }
 
 /// Lagged-regressor least squares: columns are `−y(k−1..k−na)`, `u_j(k−1..k−nb)`,
 /// `e(k−1..k−nc)` for the supplied `e`; rows start at `max(na, nb, nc)`.
-fn regress(data: &[Series], target: &[&[f64]], ys: &[&[f64]], us: &[&[Vec<f64>]], es: Option<&[Vec<f64>]>, na: usize, nb: usize, nc: usize) -> Result<DVector<f64>, ModelError> {
+fn regress(
+    data: &[Series],
+    target: &[&[f64]],
+    ys: &[&[f64]],
+    us: &[&[Vec<f64>]],
+    es: Option<&[Vec<f64>]>,
+    na: usize,
+    nb: usize,
+    nc: usize,
+) -> Result<DVector<f64>, ModelError> {
     let m = us.first().map_or(0, |u| u.len());
     let p = na + nb * m + nc;
     let start = na.max(nb).max(nc);
@@ -266,7 +283,8 @@ pub fn output_error(data: &[Series], poles: usize, zeros: usize) -> Result<Polyn
         current.a = vec![0.0; poles];
     }
     for _ in 0..10 {
-        let filtered: Vec<Series> = data.iter().map(|s| Series { y: all_pole(&s.y, &current.a), u: s.u.iter().map(|u| all_pole(u, &current.a)).collect() }).collect();
+        let filtered: Vec<Series> =
+            data.iter().map(|s| Series { y: all_pole(&s.y, &current.a), u: s.u.iter().map(|u| all_pole(u, &current.a)).collect() }).collect();
         let (ys, us) = views(&filtered);
         let theta = regress(&filtered, &ys, &ys, &us, None, poles, nb, 0)?;
         let next = unpack(&theta, poles, nb, m, 0);

@@ -225,7 +225,15 @@ pub fn place(ss: &StateSpace, poles: &[Complex<f64>], method: Option<PlacementMe
     closed.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
     let svd = controllability(&ss.a, &ss.b).svd(false, false);
     let cond = svd.singular_values.max() / svd.singular_values.min().max(f64::MIN_POSITIVE);
-    Ok(Placement { l, m, closed_loop_poles: closed, requested_poles: poles.iter().map(|p| [p.re, p.im]).collect(), method, dt_s: ss.dt_s, controllability_condition: cond })
+    Ok(Placement {
+        l,
+        m,
+        closed_loop_poles: closed,
+        requested_poles: poles.iter().map(|p| [p.re, p.im]).collect(),
+        method,
+        dt_s: ss.dt_s,
+        controllability_condition: cond,
+    })
 }
 
 /// Physical limits and set point of a closed-loop simulation.
@@ -378,14 +386,19 @@ pub fn fopdt_of(ss: &StateSpace, horizon_s: f64) -> Result<Fopdt, ModelError> {
     }
     let dc = ss.dc_gain()?.first().copied().unwrap_or(f64::NAN);
     if !(dc.is_finite() && dc > 0.0) {
-        return Err(ModelError::Numerical(format!("the model's heater gain is {dc} °C per unit duty; a heater must raise the temperature, so refusing to tune a controller from it")));
+        return Err(ModelError::Numerical(format!(
+            "the model's heater gain is {dc} °C per unit duty; a heater must raise the temperature, so refusing to tune a controller from it"
+        )));
     }
     let y = ss.simulate(&u, &vec![0.0; ss.order()], 0)?;
     let p = fopdt::fit(&[Series { y, u: vec![vec![1.0; n]] }], dt, horizon_s / 4.0)?;
     // A heater raises the temperature: a zero or negative gain means the model
     // (or its input sign) is wrong, and a PID tuned from it would run away.
     if !(p.gain_c.is_finite() && p.gain_c > 0.0 && p.tau_s.is_finite() && p.tau_s > 0.0) {
-        return Err(ModelError::Numerical(format!("the model's step response has gain {} °C and time constant {} s; a heater needs both positive", p.gain_c, p.tau_s)));
+        return Err(ModelError::Numerical(format!(
+            "the model's step response has gain {} °C and time constant {} s; a heater needs both positive",
+            p.gain_c, p.tau_s
+        )));
     }
     Ok(p)
 }
@@ -443,21 +456,29 @@ pub fn simulate_pid(ss: &StateSpace, pid: &Pid, setup: &LoopSetup) -> Result<Res
 
 /// The source's selected 4- and 5-state continuous models (digest §Model families).
 pub fn source_models() -> Result<(StateSpace, StateSpace), ModelError> {
-    let a4 = DMatrix::from_row_slice(4, 4, &[
-        0.0008825, -0.002625, 0.001638, -0.004195, //
-        0.006013, 0.01268, 0.2325, -0.4324, //
-        0.001642, -0.1009, -0.07618, 1.912, //
-        0.001088, 0.01527, -1.538, -0.07442,
-    ]);
+    let a4 = DMatrix::from_row_slice(
+        4,
+        4,
+        &[
+            0.0008825, -0.002625, 0.001638, -0.004195, //
+            0.006013, 0.01268, 0.2325, -0.4324, //
+            0.001642, -0.1009, -0.07618, 1.912, //
+            0.001088, 0.01527, -1.538, -0.07442,
+        ],
+    );
     let b4 = DMatrix::from_column_slice(4, 1, &[-2.87e-7, -5.262e-6, 5.458e-5, -9.529e-5]);
     let c4 = DMatrix::from_row_slice(1, 4, &[1107.0, -0.4442, -0.3671, -0.5748]);
-    let a5 = DMatrix::from_row_slice(5, 5, &[
-        0.000889, -0.00239, 0.00281, 0.004382, -0.001348, //
-        0.007245, -0.00519, 0.2566, 0.1581, -0.2902, //
-        -0.000451, -0.09917, -0.2531, -2.621, 1.16, //
-        0.000709, 0.01095, 2.238, -0.2162, -0.7223, //
-        -0.00246, -0.05437, 0.4936, 0.6984, -7.359,
-    ]);
+    let a5 = DMatrix::from_row_slice(
+        5,
+        5,
+        &[
+            0.000889, -0.00239, 0.00281, 0.004382, -0.001348, //
+            0.007245, -0.00519, 0.2566, 0.1581, -0.2902, //
+            -0.000451, -0.09917, -0.2531, -2.621, 1.16, //
+            0.000709, 0.01095, 2.238, -0.2162, -0.7223, //
+            -0.00246, -0.05437, 0.4936, 0.6984, -7.359,
+        ],
+    );
     let b5 = DMatrix::from_column_slice(5, 1, &[1.919e-7, 1.336e-4, -2.284e-4, 6.544e-4, 3.081e-3]);
     let c5 = DMatrix::from_row_slice(1, 5, &[1098.0, 0.808, -2.372, -1.776, -1.297]);
     Ok((StateSpace::new(a4, b4, c4, DMatrix::zeros(1, 1), None)?, StateSpace::new(a5, b5, c5, DMatrix::zeros(1, 1), None)?))
@@ -537,7 +558,14 @@ mod tests {
     #[test]
     fn placement_is_exact_on_a_well_conditioned_system() {
         // Double integrator: L for poles −1, −2 is [2, 3] (char. poly s² + 3s + 2).
-        let ss = StateSpace::new(DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]), DMatrix::from_column_slice(2, 1, &[0.0, 1.0]), DMatrix::from_row_slice(1, 2, &[1.0, 0.0]), DMatrix::zeros(1, 1), None).expect("ss");
+        let ss = StateSpace::new(
+            DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]),
+            DMatrix::from_column_slice(2, 1, &[0.0, 1.0]),
+            DMatrix::from_row_slice(1, 2, &[1.0, 0.0]),
+            DMatrix::zeros(1, 1),
+            None,
+        )
+        .expect("ss");
         let poles = [Complex::new(-1.0, 0.0), Complex::new(-2.0, 0.0)];
         for m in [PlacementMethod::Ackermann, PlacementMethod::Hessenberg] {
             let p = place(&ss, &poles, Some(m)).expect("place");
@@ -553,7 +581,14 @@ mod tests {
 
     #[test]
     fn discrete_loop_tracks_with_unit_gain_and_respects_limits() {
-        let ct = StateSpace::new(DMatrix::from_row_slice(2, 2, &[-0.002, 0.0, 0.125, -0.125]), DMatrix::from_column_slice(2, 1, &[0.5, 0.0]), DMatrix::from_row_slice(1, 2, &[0.0, 1.0]), DMatrix::zeros(1, 1), None).expect("ss");
+        let ct = StateSpace::new(
+            DMatrix::from_row_slice(2, 2, &[-0.002, 0.0, 0.125, -0.125]),
+            DMatrix::from_column_slice(2, 1, &[0.5, 0.0]),
+            DMatrix::from_row_slice(1, 2, &[0.0, 1.0]),
+            DMatrix::zeros(1, 1),
+            None,
+        )
+        .expect("ss");
         let dt = ct.c2d(1.0).expect("c2d");
         let poles: Vec<Complex<f64>> = [-0.02, -0.03].iter().map(|s: &f64| Complex::new((s * 1.0).exp(), 0.0)).collect();
         let p = place(&dt, &poles, None).expect("place");

@@ -108,7 +108,8 @@ mod tests {
         let opts = IdentOptions { families: vec![Family::Tf, Family::N4sid], orders: vec![2, 4], horizon: 10, ..Default::default() };
         let black = identify(&ident[..1], &opts).expect("black");
         let grey = identify(&ident, &IdentOptions { families: vec![Family::Greybox], ..Default::default() }).expect("grey");
-        let models: Vec<(String, ThermalModel, f64)> = black.models.iter().chain(&grey.models).map(|m| (m.model.label(), m.model.clone(), m.score.fit_percent)).collect();
+        let models: Vec<(String, ThermalModel, f64)> =
+            black.models.iter().chain(&grey.models).map(|m| (m.model.label(), m.model.clone(), m.score.fit_percent)).collect();
         let cv = cross_validate(&models, &verif);
         assert_eq!(cv.fit_percent.len(), models.len());
         assert_eq!(cv.experiments.len(), 4);

@@ -91,7 +91,11 @@ impl FirstOrderPlant {
             .iter()
             .map(|t| {
                 let v = t + normal.sample(&mut rng);
-                if noise.quantum_c > 0.0 { (v / noise.quantum_c).round() * noise.quantum_c } else { v }
+                if noise.quantum_c > 0.0 {
+                    (v / noise.quantum_c).round() * noise.quantum_c
+                } else {
+                    v
+                }
             })
             .collect();
         Ok(StepLog { time_s, fan_duty: vec![0.0; n], heater_duty, temperature_c })
@@ -150,13 +154,7 @@ pub fn fit(log: &StepLog) -> Result<FirstOrderFit, ModelError> {
     plant.check()?;
     let simulated_c = plant.simulate(u, dt, plant.ambient_c);
     let residual_c = y.iter().zip(&simulated_c).map(|(m, s)| m - s).collect();
-    Ok(FirstOrderFit {
-        plant,
-        fit_percent: metrics::fit_percent(y, &simulated_c),
-        rms_c: metrics::rms(y, &simulated_c),
-        simulated_c,
-        residual_c,
-    })
+    Ok(FirstOrderFit { plant, fit_percent: metrics::fit_percent(y, &simulated_c), rms_c: metrics::rms(y, &simulated_c), simulated_c, residual_c })
 }
 
 #[cfg(test)]

@@ -149,9 +149,11 @@ pub fn identify(exps: &[Experiment], opts: &IdentOptions) -> Result<IdentResult,
         for r in list {
             match r {
                 Ok(model) => match model.score(exps) {
-                    Ok(score) if !score.fit_percent.is_finite() => {
-                        out.failures.push(Failure { family: model.family, order: model.order, reason: "its simulation diverges on its own data (unstable model)".into() })
-                    }
+                    Ok(score) if !score.fit_percent.is_finite() => out.failures.push(Failure {
+                        family: model.family,
+                        order: model.order,
+                        reason: "its simulation diverges on its own data (unstable model)".into(),
+                    }),
                     Ok(score) => out.models.push(Identified { model, score }),
                     Err(e) => out.failures.push(Failure { family: model.family, order: model.order, reason: e.to_string() }),
                 },
@@ -178,35 +180,34 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
             let max_order = opts.orders.iter().copied().max().unwrap_or(1);
             // One long-ARX innovations estimate shared by every ARMAX order.
             let innovations = if family == Family::Armax { arx::innovations(data, (3 * max_order).max(10)).ok() } else { None };
-            opts
-            .orders
-            .iter()
-            .map(|&n| {
-                let poly = match family {
-                    Family::Arx => arx::arx(data, n, n),
-                    Family::Armax => match &innovations {
-                        Some(e) => arx::armax_from(data, n, e),
-                        None => arx::armax(data, n),
-                    },
-                    _ => arx::output_error(data, n, opts.tf_zeros.unwrap_or(n - 1).min(n - 1)),
-                };
-                let zeros = opts.tf_zeros.unwrap_or(n - 1).min(n - 1);
-                let params = match family {
-                    Family::Arx => n + n * m,
-                    Family::Armax => 2 * n + n * m,
-                    _ => n + (zeros + 1) * m,
-                };
-                poly.and_then(|p| p.to_state_space(dt))
-                    .map(|ss| {
-                        let mut model = ThermalModel::from_discrete(family, n, inputs.clone(), &ss, params, names.to_vec());
-                        if family == Family::Tf {
-                            model.zeros = Some(zeros);
-                        }
-                        model
-                    })
-                    .map_err(|e| fail(family, n, e))
-            })
-            .collect()
+            opts.orders
+                .iter()
+                .map(|&n| {
+                    let poly = match family {
+                        Family::Arx => arx::arx(data, n, n),
+                        Family::Armax => match &innovations {
+                            Some(e) => arx::armax_from(data, n, e),
+                            None => arx::armax(data, n),
+                        },
+                        _ => arx::output_error(data, n, opts.tf_zeros.unwrap_or(n - 1).min(n - 1)),
+                    };
+                    let zeros = opts.tf_zeros.unwrap_or(n - 1).min(n - 1);
+                    let params = match family {
+                        Family::Arx => n + n * m,
+                        Family::Armax => 2 * n + n * m,
+                        _ => n + (zeros + 1) * m,
+                    };
+                    poly.and_then(|p| p.to_state_space(dt))
+                        .map(|ss| {
+                            let mut model = ThermalModel::from_discrete(family, n, inputs.clone(), &ss, params, names.to_vec());
+                            if family == Family::Tf {
+                                model.zeros = Some(zeros);
+                            }
+                            model
+                        })
+                        .map_err(|e| fail(family, n, e))
+                })
+                .collect()
         }
         Family::N4sid | Family::Moesp => {
             let method = if family == Family::N4sid { subspace::Method::N4sid } else { subspace::Method::Moesp };

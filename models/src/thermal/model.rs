@@ -54,7 +54,11 @@ impl Family {
 
     /// Parse a lower-case name.
     pub fn parse(s: &str) -> Result<Family, ModelError> {
-        Family::ALL.iter().copied().find(|f| f.name() == s).ok_or_else(|| ModelError::invalid("family", s, "expected fopdt, arx, armax, n4sid, moesp, tf or greybox"))
+        Family::ALL
+            .iter()
+            .copied()
+            .find(|f| f.name() == s)
+            .ok_or_else(|| ModelError::invalid("family", s, "expected fopdt, arx, armax, n4sid, moesp, tf or greybox"))
     }
 }
 

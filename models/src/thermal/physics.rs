@@ -136,7 +136,15 @@ mod tests {
     use super::*;
 
     fn rates() -> Rates {
-        Rates { heat_k_s: 0.5, loss_1_s: 0.002, fan_loss_1_s: 0.001, near_loss_1_s: 0.0005, near_scale: 15.0, sensor_tau_s: 8.0, extrude_loss_1_s_per_mm3_s: 0.0 }
+        Rates {
+            heat_k_s: 0.5,
+            loss_1_s: 0.002,
+            fan_loss_1_s: 0.001,
+            near_loss_1_s: 0.0005,
+            near_scale: 15.0,
+            sensor_tau_s: 8.0,
+            extrude_loss_1_s_per_mm3_s: 0.0,
+        }
     }
 
     #[test]

@@ -49,7 +49,14 @@ impl StateSpace {
         if n == 0 || a.ncols() != n || b.nrows() != n || b.ncols() == 0 || c.nrows() != 1 || c.ncols() != n || d.nrows() != 1 || d.ncols() != b.ncols() {
             return Err(ModelError::Shape(format!(
                 "state space needs A n×n, B n×m, C 1×n, D 1×m; got A {}×{}, B {}×{}, C {}×{}, D {}×{}",
-                a.nrows(), a.ncols(), b.nrows(), b.ncols(), c.nrows(), c.ncols(), d.nrows(), d.ncols()
+                a.nrows(),
+                a.ncols(),
+                b.nrows(),
+                b.ncols(),
+                c.nrows(),
+                c.ncols(),
+                d.nrows(),
+                d.ncols()
             )));
         }
         if ![&a, &b, &c, &d].iter().all(|m| m.iter().all(|v| v.is_finite())) {
@@ -291,7 +298,8 @@ mod tests {
     use super::*;
 
     fn first_order() -> StateSpace {
-        StateSpace::new(DMatrix::from_element(1, 1, -0.01), DMatrix::from_element(1, 1, 2.0), DMatrix::from_element(1, 1, 1.0), DMatrix::zeros(1, 1), None).expect("ss")
+        StateSpace::new(DMatrix::from_element(1, 1, -0.01), DMatrix::from_element(1, 1, 2.0), DMatrix::from_element(1, 1, 1.0), DMatrix::zeros(1, 1), None)
+            .expect("ss")
     }
 
     #[test]
@@ -311,7 +319,14 @@ mod tests {
     #[test]
     fn d2c_round_trips_an_oscillatory_fourth_order_model() {
         let a = DMatrix::from_row_slice(4, 4, &[-0.02, 1.0, 0.0, 0.0, -1.0, -0.02, 0.3, 0.0, 0.0, 0.0, -0.005, 0.1, 0.0, 0.0, 0.0, -0.2]);
-        let ct = StateSpace::new(a, DMatrix::from_row_slice(4, 2, &[0.0, 1.0, 1.0, 0.0, 0.5, 0.1, 1.0, 0.0]), DMatrix::from_row_slice(1, 4, &[1.0, 0.0, 1.0, 0.5]), DMatrix::zeros(1, 2), None).expect("ss");
+        let ct = StateSpace::new(
+            a,
+            DMatrix::from_row_slice(4, 2, &[0.0, 1.0, 1.0, 0.0, 0.5, 0.1, 1.0, 0.0]),
+            DMatrix::from_row_slice(1, 4, &[1.0, 0.0, 1.0, 0.5]),
+            DMatrix::zeros(1, 2),
+            None,
+        )
+        .expect("ss");
         let back = ct.c2d(0.5).expect("c2d").d2c().expect("d2c");
         // Round trip error is bounded by cond(logm)·ε ≈ 1e-12 for these norms.
         assert!((&back.a - &ct.a).norm() < 1e-10 && (&back.b - &ct.b).norm() < 1e-10, "{}", (&back.a - &ct.a).norm());
@@ -319,7 +334,14 @@ mod tests {
 
     #[test]
     fn d2c_refuses_a_negative_real_pole() {
-        let dt = StateSpace::new(DMatrix::from_element(1, 1, -0.5), DMatrix::from_element(1, 1, 1.0), DMatrix::from_element(1, 1, 1.0), DMatrix::zeros(1, 1), Some(1.0)).expect("ss");
+        let dt = StateSpace::new(
+            DMatrix::from_element(1, 1, -0.5),
+            DMatrix::from_element(1, 1, 1.0),
+            DMatrix::from_element(1, 1, 1.0),
+            DMatrix::zeros(1, 1),
+            Some(1.0),
+        )
+        .expect("ss");
         assert!(dt.d2c().is_err());
     }
 

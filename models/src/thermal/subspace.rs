@@ -58,7 +58,11 @@ pub fn prepare(data: &[Series], horizon: usize) -> Result<Prepared, ModelError> 
     // Scale to unit RMS so the Gram matrix is balanced.
     let rms = |v: &mut dyn Iterator<Item = f64>| {
         let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-        if n > 0 && s > 0.0 { (s / n as f64).sqrt() } else { 1.0 }
+        if n > 0 && s > 0.0 {
+            (s / n as f64).sqrt()
+        } else {
+            1.0
+        }
     };
     let y_scale = rms(&mut data.iter().flat_map(|s| s.y.iter().copied()));
     let u_scale: Vec<f64> = (0..m).map(|j| rms(&mut data.iter().flat_map(|s| s.u[j].iter().copied()))).collect();

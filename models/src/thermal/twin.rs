@@ -267,7 +267,11 @@ impl Noise {
     }
     fn measure(&mut self, t: f64) -> f64 {
         let v = t + self.normal.sample(&mut self.rng);
-        if self.quantum > 0.0 { (v / self.quantum).round() * self.quantum } else { v }
+        if self.quantum > 0.0 {
+            (v / self.quantum).round() * self.quantum
+        } else {
+            v
+        }
     }
 }
 

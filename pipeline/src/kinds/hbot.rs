@@ -150,7 +150,8 @@ impl HbotSpec {
                 return Err(spec.bad_value(key, why));
             }
         }
-        cfg.sensor = fdmlab_models::hbot::sensor::LaserSensor { sample_dt_s: s.sample_dt_s, noise_sd_m: s.noise_um * 1e-6, resolution_m: s.resolution_um * 1e-6 };
+        cfg.sensor =
+            fdmlab_models::hbot::sensor::LaserSensor { sample_dt_s: s.sample_dt_s, noise_sd_m: s.noise_um * 1e-6, resolution_m: s.resolution_um * 1e-6 };
         cfg.screening_threshold = self.screening.threshold;
         cfg.second_round = self.taguchi.second_round;
         cfg.shrink = self.taguchi.shrink;
@@ -219,7 +220,8 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let cfg: StudyConfig = input.params()?;
             let data: StudyData = input.json("measure", "data.json")?;
             let t = study::run_taguchi(&cfg, &data)?;
-            let mut out = StageOutput::default().add("l27.csv", "text/csv", l27_csv(&t.bridge).into_bytes()).metric("confirmation_s_mm", t.bridge.confirmation_s_mm);
+            let mut out =
+                StageOutput::default().add("l27.csv", "text/csv", l27_csv(&t.bridge).into_bytes()).metric("confirmation_s_mm", t.bridge.confirmation_s_mm);
             if let Some(b2) = &t.bridge_second {
                 out = out.add("l27-round2.csv", "text/csv", l27_csv(b2).into_bytes()).metric("round2_confirmation_s_mm", b2.confirmation_s_mm);
             }
@@ -257,7 +259,8 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         })
         .after(&["taguchi", "direct"]),
         Stage::new("report", 1, serde_json::json!({ "title": title, "study": params }), |input| {
-            let cfg: StudyConfig = serde_json::from_value(input.params["study"].clone()).map_err(|e| crate::Error::Stage { stage: "report".into(), message: e.to_string() })?;
+            let cfg: StudyConfig =
+                serde_json::from_value(input.params["study"].clone()).map_err(|e| crate::Error::Stage { stage: "report".into(), message: e.to_string() })?;
             let data: StudyData = input.json("measure", "data.json")?;
             let screening: Screening = input.json("screen", "screening.json")?;
             let taguchi: TaguchiStudy = input.json("taguchi", "taguchi.json")?;

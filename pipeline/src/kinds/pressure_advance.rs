@@ -214,7 +214,11 @@ impl PaSpec {
         let c = &self.calibration;
         let pattern = Pattern::parse(&c.pattern).map_err(|e| spec.bad_value("calibration.pattern", e.to_string()))?;
         let k = p.and_then(|p| p.k).unwrap_or(c.k);
-        let line = c.line.unwrap_or(if pattern == Pattern::Tower { LinePattern { slow_len_mm: 10.0, fast_len_mm: 30.0, ..LinePattern::default() } } else { LinePattern::default() });
+        let line = c.line.unwrap_or(if pattern == Pattern::Tower {
+            LinePattern { slow_len_mm: 10.0, fast_len_mm: 30.0, ..LinePattern::default() }
+        } else {
+            LinePattern::default()
+        });
         Ok(Calibration {
             pattern,
             k_start: k.start,
@@ -249,7 +253,12 @@ impl PaSpec {
             if !(p.scale > 0.0 && p.scale <= 1000.0) {
                 return Err(spec.bad_value("prints.scale", "must be within (0, 1000]"));
             }
-            jobs.push(PrintJob { printer: printer.clone(), calibration: c, extruder: self.printer.extruder(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
+            jobs.push(PrintJob {
+                printer: printer.clone(),
+                calibration: c,
+                extruder: self.printer.extruder(),
+                nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds),
+            });
         }
         let m = &self.model;
         let rules: [(&str, bool, &str); 6] = [
@@ -258,7 +267,11 @@ impl PaSpec {
             ("dataset.source", self.dataset.source != "prints" || self.prints.len() >= 4, "`prints` needs at least 4 [[prints]] to train on"),
             ("model.hidden", m.hidden.iter().all(|&w| (1..=1024).contains(&w)), "widths must be within 1–1024"),
             ("model.folds", (2..=20).contains(&m.folds), "must be within 2–20"),
-            ("model.epochs", (1..=100_000).contains(&m.epochs) && m.batch > 0 && m.learning_rate > 0.0 && m.learning_rate < 10.0, "epochs 1–100000, batch > 0, learning_rate in (0, 10)"),
+            (
+                "model.epochs",
+                (1..=100_000).contains(&m.epochs) && m.batch > 0 && m.learning_rate > 0.0 && m.learning_rate < 10.0,
+                "epochs 1–100000, batch > 0, learning_rate in (0, 10)",
+            ),
         ];
         for (key, ok, why) in rules {
             if !ok {
@@ -291,19 +304,36 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     }));
 
     // 2. Scores of the printed calibrations.
-    let score_files: Vec<PathBuf> = s.prints.iter().enumerate().map(|(i, p)| spec.input_file(&format!("prints.{i}.scores"), &p.scores).or_else(|_| spec.input_file("prints.scores", &p.scores))).collect::<Result<_>>()?;
+    let score_files: Vec<PathBuf> = s
+        .prints
+        .iter()
+        .enumerate()
+        .map(|(i, p)| spec.input_file(&format!("prints.{i}.scores"), &p.scores).or_else(|_| spec.input_file("prints.scores", &p.scores)))
+        .collect::<Result<_>>()?;
     if !s.prints.is_empty() {
         let files = score_files.clone();
-        let meta: Vec<(String, f64, String, f64)> = jobs.iter().skip(1).zip(&s.prints).map(|(j, p)| (j.extruder.clone(), j.nozzle_setting_mm, p.scores.clone(), p.scale)).collect();
+        let meta: Vec<(String, f64, String, f64)> =
+            jobs.iter().skip(1).zip(&s.prints).map(|(j, p)| (j.extruder.clone(), j.nozzle_setting_mm, p.scores.clone(), p.scale)).collect();
         stages.push(
             Stage::new("scores", 1, serde_json::json!({ "prints": meta }), move |input| {
-                let meta: Vec<(String, f64, String, f64)> = serde_json::from_value(input.params["prints"].clone()).map_err(|e| Error::Stage { stage: "scores".into(), message: e.to_string() })?;
+                let meta: Vec<(String, f64, String, f64)> =
+                    serde_json::from_value(input.params["prints"].clone()).map_err(|e| Error::Stage { stage: "scores".into(), message: e.to_string() })?;
                 let mut results = Vec::new();
                 let mut csv = String::from("material,extruder,hotend_c,nozzle_setting_mm,layer_mm,k_a,k_a_sd,kendall_w\n");
                 for (i, ((extruder, ds, name, scale), path)) in meta.iter().zip(&files).enumerate() {
                     let m: Manifest = input.json("gcode", &format!("print-{}.json", i + 1))?;
                     let ps = scores::ingest(&input.file(path)?, name, &m, *scale)?;
-                    csv += &format!("{},{},{},{},{},{},{},{}\n", m.material, extruder, m.hotend_c, ds, m.layer_mm, ps.best.k, ps.best.k_sd, ps.kendall_w.map(|w| w.to_string()).unwrap_or_default());
+                    csv += &format!(
+                        "{},{},{},{},{},{},{},{}\n",
+                        m.material,
+                        extruder,
+                        m.hotend_c,
+                        ds,
+                        m.layer_mm,
+                        ps.best.k,
+                        ps.best.k_sd,
+                        ps.kendall_w.map(|w| w.to_string()).unwrap_or_default()
+                    );
                     results.push(ps);
                 }
                 StageOutput::default().add("prints.csv", "text/csv", csv.into_bytes()).add_json("scores.json", &results)
@@ -317,7 +347,8 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let (dataset, target, features) = match s.dataset.source.as_str() {
         "twin" => {
             stages.push(Stage::new("dataset", 1, serde_json::json!({ "grid": GridConfig { seed: s.experiment.seed, ..GridConfig::default() } }), |input| {
-                let cfg: GridConfig = serde_json::from_value(input.params["grid"].clone()).map_err(|e| Error::Stage { stage: "dataset".into(), message: e.to_string() })?;
+                let cfg: GridConfig =
+                    serde_json::from_value(input.params["grid"].clone()).map_err(|e| Error::Stage { stage: "dataset".into(), message: e.to_string() })?;
                 let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
                 let max = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
                 Ok(StageOutput::default()
@@ -333,8 +364,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let path = spec.input_file("dataset.file", &rel)?;
             let p2 = path.clone();
             stages.push(
-                Stage::new("dataset", 1, serde_json::json!({ "file": rel }), move |input| Ok(StageOutput::default().add("data.csv", "text/csv", input.file(&p2)?)))
-                    .reading(vec![path]),
+                Stage::new("dataset", 1, serde_json::json!({ "file": rel }), move |input| {
+                    Ok(StageOutput::default().add("data.csv", "text/csv", input.file(&p2)?))
+                })
+                .reading(vec![path]),
             );
             ("dataset", s.dataset.target.clone(), s.dataset.features.clone())
         }
@@ -347,10 +380,12 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         hidden: s.model.hidden,
         train: TrainConfig { epochs: s.model.epochs, batch_size: s.model.batch, learning_rate: s.model.learning_rate, seed: s.experiment.seed },
     };
-    let train_params = serde_json::json!({ "settings": settings, "folds": s.model.folds, "target": target, "features": features, "data": [dataset, data_name] });
+    let train_params =
+        serde_json::json!({ "settings": settings, "folds": s.model.folds, "target": target, "features": features, "data": [dataset, data_name] });
     stages.push(
         Stage::new("train", 2, train_params, move |input| {
-            let settings: MlpSettings = serde_json::from_value(input.params["settings"].clone()).map_err(|e| Error::Stage { stage: "train".into(), message: e.to_string() })?;
+            let settings: MlpSettings =
+                serde_json::from_value(input.params["settings"].clone()).map_err(|e| Error::Stage { stage: "train".into(), message: e.to_string() })?;
             let folds = input.params["folds"].as_u64().unwrap_or(5) as usize;
             let target = input.params["target"].as_str().unwrap_or("k_a").to_string();
             let features: Option<Vec<String>> = serde_json::from_value(input.params["features"].clone()).unwrap_or(None);
@@ -360,7 +395,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let t = table::load(&bytes, &name, &target, features.as_deref())?;
             let (km, cv) = KaModel::train(&t, &settings, folds.min(t.design.rows()))?;
             let bpk = km.model.to_burnpack()?;
-            let mut out = StageOutput::default().add("model.json", "application/json", km.to_json()?).add("model.bpk", "application/octet-stream", bpk).add_json("cv.json", &cv)?;
+            let mut out = StageOutput::default()
+                .add("model.json", "application/json", km.to_json()?)
+                .add("model.bpk", "application/octet-stream", bpk)
+                .add_json("cv.json", &cv)?;
             for m in &cv.models {
                 out = out.metric(&format!("{}_mae", m.name), m.mae).metric(&format!("{}_max_error", m.name), m.max_error);
             }
@@ -450,7 +488,13 @@ fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScore
                     let mut pts = Vec::new();
                     let mut t = props.hotend_min_c;
                     while t <= props.hotend_max_c + 1e-9 {
-                        let k = km.predict(&q(&[("material", mat.into()), ("extruder", ext.into()), ("hotend_c", format!("{t}")), ("nozzle_setting_mm", "0.4".into()), ("layer_mm", format!("{h}"))]))?;
+                        let k = km.predict(&q(&[
+                            ("material", mat.into()),
+                            ("extruder", ext.into()),
+                            ("hotend_c", format!("{t}")),
+                            ("nozzle_setting_mm", "0.4".into()),
+                            ("layer_mm", format!("{h}")),
+                        ]))?;
                         pts.push((t, k));
                         t += 2.5;
                     }
@@ -460,11 +504,30 @@ fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScore
             }
         }
         r.heading("Bowden vs direct drive (PLA, 215 °C, D_s 0.4 mm)");
-        let mut t = Table::new("K_A (s): source (Zimenko 2022, table 2), twin truth, network", ["h (mm)", "Bowden source", "Bowden twin", "Bowden net", "direct source", "direct twin", "direct net"]);
+        let mut t = Table::new(
+            "K_A (s): source (Zimenko 2022, table 2), twin truth, network",
+            ["h (mm)", "Bowden source", "Bowden twin", "Bowden net", "direct source", "direct twin", "direct net"],
+        );
         for (h, bs, ds) in [(0.3, 0.59, 0.045), (0.2, 0.63, 0.060), (0.1, 0.90, 0.090)] {
             let truth = |e: Extruder| Conditions { material: Material::Pla, extruder: e, hotend_c: 215.0, layer_mm: h, nozzle_setting_mm: 0.4 }.true_k_s();
-            let net = |e: &str| km.predict(&q(&[("material", "PLA".into()), ("extruder", e.into()), ("hotend_c", "215".into()), ("nozzle_setting_mm", "0.4".into()), ("layer_mm", format!("{h}"))]));
-            t.push([format!("{h}"), num(bs, 3), num(truth(Extruder::Bowden), 3), num(net("bowden")?, 3), num(ds, 3), num(truth(Extruder::Direct), 3), num(net("direct")?, 3)]);
+            let net = |e: &str| {
+                km.predict(&q(&[
+                    ("material", "PLA".into()),
+                    ("extruder", e.into()),
+                    ("hotend_c", "215".into()),
+                    ("nozzle_setting_mm", "0.4".into()),
+                    ("layer_mm", format!("{h}")),
+                ]))
+            };
+            t.push([
+                format!("{h}"),
+                num(bs, 3),
+                num(truth(Extruder::Bowden), 3),
+                num(net("bowden")?, 3),
+                num(ds, 3),
+                num(truth(Extruder::Direct), 3),
+                num(net("direct")?, 3),
+            ]);
         }
         r.table(t);
     }
@@ -472,14 +535,24 @@ fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScore
         r.heading("Scored prints");
         let mut t = Table::new("Best K_A per print (local quadratic around the best mean score)", ["print", "best K_A", "± sd", "raters", "Kendall's W"]);
         for (i, p) in prints.iter().enumerate() {
-            t.push([format!("{}", i + 1), num(p.best.k, 4), num(p.best.k_sd, 4), format!("{}", p.raters.len()), p.kendall_w.map(|w| num(w, 3)).unwrap_or_else(|| "n/a".into())]);
+            t.push([
+                format!("{}", i + 1),
+                num(p.best.k, 4),
+                num(p.best.k_sd, 4),
+                format!("{}", p.raters.len()),
+                p.kendall_w.map(|w| num(w, 3)).unwrap_or_else(|| "n/a".into()),
+            ]);
         }
         r.table(t);
         for (i, p) in prints.iter().enumerate() {
             let means = p.table.line_means();
             let pts: Vec<(f64, f64)> = p.table.k.iter().zip(&means).filter_map(|(k, m)| m.map(|m| (*k, m))).collect();
             let top = pts.iter().map(|p| p.1).fold(0.0, f64::max);
-            r.plot(LinePlot::new(format!("print {}: mean score, chosen K_A = {}", i + 1, num(p.best.k, 4)), "K_A (s)", "mean score").points("mean score", pts).line("chosen K_A", vec![(p.best.k, 0.0), (p.best.k, top)]));
+            r.plot(
+                LinePlot::new(format!("print {}: mean score, chosen K_A = {}", i + 1, num(p.best.k, 4)), "K_A (s)", "mean score")
+                    .points("mean score", pts)
+                    .line("chosen K_A", vec![(p.best.k, 0.0), (p.best.k, top)]),
+            );
         }
     }
     Ok(r)

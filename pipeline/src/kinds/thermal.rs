@@ -108,7 +108,11 @@ impl ThermalSpec {
             ("protocol.dt_s", self.protocol.dt_s > 0.0 && self.protocol.dt_s <= self.protocol.heat_s / 10.0, "must be > 0 and give ≥ 10 samples while heating"),
             ("sensor.sigma_c", (0.0..=50.0).contains(&self.sensor.sigma_c), "must be within 0..50 °C"),
             ("sensor.quantum_c", (0.0..=10.0).contains(&self.sensor.quantum_c), "must be within 0..10 °C"),
-            ("identify.families", self.identify.families.iter().all(|f| f == "first-order") && !self.identify.families.is_empty(), "known families: first-order"),
+            (
+                "identify.families",
+                self.identify.families.iter().all(|f| f == "first-order") && !self.identify.families.is_empty(),
+                "known families: first-order",
+            ),
         ];
         for (key, ok, why) in rules {
             if !ok {
@@ -179,13 +183,13 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
 
 /// The twin's step test as a stage.
 fn simulate_stage(sim_params: serde_json::Value) -> Stage {
-        Stage::new("simulate", 1, sim_params, |input| {
-            let p: SimulateParams = input.params()?;
-            let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
-            let csv = fdmlab_datasets::csv::write_columns(
-                &["time_s", "heater_duty", "fan_duty", "temperature_c"],
-                &[&log.time_s, &log.heater_duty, &log.fan_duty, &log.temperature_c],
-            );
-            StageOutput::default().add("log.csv", "text/csv", csv.into_bytes()).add_json("log.json", &log)?.add_json("truth.json", &p.plant)
-        })
+    Stage::new("simulate", 1, sim_params, |input| {
+        let p: SimulateParams = input.params()?;
+        let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
+        let csv = fdmlab_datasets::csv::write_columns(
+            &["time_s", "heater_duty", "fan_duty", "temperature_c"],
+            &[&log.time_s, &log.heater_duty, &log.fan_duty, &log.temperature_c],
+        );
+        StageOutput::default().add("log.csv", "text/csv", csv.into_bytes()).add_json("log.json", &log)?.add_json("truth.json", &p.plant)
+    })
 }

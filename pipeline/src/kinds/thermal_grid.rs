@@ -17,8 +17,8 @@ use fdmlab_models::thermal::ss::StateSpace;
 use fdmlab_models::thermal::twin::{identification_grid, verification_grid, StepTest, Twin};
 use fdmlab_reports::{LinePlot, Report, Table};
 use nalgebra::{Complex, DMatrix};
-use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// The spec of a `thermal-grid` experiment.
 #[derive(Debug, Clone, Deserialize)]
@@ -113,10 +113,23 @@ struct Entry {
 fn check(s: &GridSpec, spec: &SpecFile) -> Result<Vec<Family>> {
     s.twin.check().map_err(|e| spec.bad_value("twin", e.to_string()))?;
     let p = &s.protocol;
-    if !(p.dt_s > 0.0 && p.dt_s <= 10.0 && p.max_heat_s > 0.0 && p.max_heat_s <= 86_400.0 && (0.0..=86_400.0).contains(&p.cool_s) && p.heat_duty > 0.0 && p.heat_duty <= 1.0) {
+    if !(p.dt_s > 0.0
+        && p.dt_s <= 10.0
+        && p.max_heat_s > 0.0
+        && p.max_heat_s <= 86_400.0
+        && (0.0..=86_400.0).contains(&p.cool_s)
+        && p.heat_duty > 0.0
+        && p.heat_duty <= 1.0)
+    {
         return Err(spec.bad_value("protocol", "need 0 < dt_s ≤ 10, 0 < max_heat_s ≤ 86400, 0 ≤ cool_s ≤ 86400, 0 < heat_duty ≤ 1"));
     }
-    let families = s.identify.families.iter().map(|f| Family::parse(f)).collect::<std::result::Result<Vec<_>, _>>().map_err(|e| spec.bad_value("identify.families", e.to_string()))?;
+    let families = s
+        .identify
+        .families
+        .iter()
+        .map(|f| Family::parse(f))
+        .collect::<std::result::Result<Vec<_>, _>>()
+        .map_err(|e| spec.bad_value("identify.families", e.to_string()))?;
     if families.is_empty() || families.contains(&Family::Greybox) {
         return Err(spec.bad_value("identify.families", "list black-box families (the grey box is always fitted on all sets)"));
     }
@@ -143,8 +156,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let export_params = serde_json::to_value(&s.export).map_err(|e| spec.bad_value("export", e.to_string()))?;
     Ok(vec![
         Stage::new("grid", 1, grid_params, |input| {
-            let twin: Twin = serde_json::from_value(input.params["twin"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
-            let protocol: StepTest = serde_json::from_value(input.params["protocol"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
+            let twin: Twin =
+                serde_json::from_value(input.params["twin"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
+            let protocol: StepTest =
+                serde_json::from_value(input.params["protocol"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
             let ident = twin.grid(&identification_grid(), &protocol, input.seed)?;
             let verif = twin.grid(&verification_grid(), &protocol, input.seed.wrapping_add(1))?;
             let mut out = StageOutput::default().add_json("ident.json", &ident)?.add_json("verif.json", &verif)?;
@@ -161,7 +176,11 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let mut failures = Vec::new();
             for (i, e) in ident.iter().enumerate() {
                 let r = ident::identify(std::slice::from_ref(e), &opts)?;
-                entries.extend(r.models.into_iter().map(|m| Entry { label: format!("set{}/{}", i + 1, m.model.label()), own_fit_percent: m.score.fit_percent, model: m.model }));
+                entries.extend(r.models.into_iter().map(|m| Entry {
+                    label: format!("set{}/{}", i + 1, m.model.label()),
+                    own_fit_percent: m.score.fit_percent,
+                    model: m.model,
+                }));
                 failures.extend(r.failures.into_iter().map(|f| format!("set{}/{}-{}: {}", i + 1, f.family.name(), f.order, f.reason)));
             }
             let grey = ident::identify(&ident, &IdentOptions { families: vec![Family::Greybox], ..Default::default() })?;
@@ -228,7 +247,13 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 if let Some(rates) = grey.model.physics {
                     use fdmlab_datasets::thermal::export as ex;
                     let phys = ex::mpc_physics_from_rates(&rates, x.heater_power_w, x.filament_heat_j_k_mm)?;
-                    let fo = control::fopdt_of(&grey.model.state_space().and_then(|s| StateSpace::new(s.a.clone(), s.b.columns(0, 1).into_owned(), s.c.clone(), DMatrix::zeros(1, 1), s.dt_s))?, 4000.0)?;
+                    let fo = control::fopdt_of(
+                        &grey
+                            .model
+                            .state_space()
+                            .and_then(|s| StateSpace::new(s.a.clone(), s.b.columns(0, 1).into_owned(), s.c.clone(), DMatrix::zeros(1, 1), s.dt_s))?,
+                        4000.0,
+                    )?;
                     out = out
                         .add("marlin-mpc.gcode", "text/plain", ex::marlin_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
                         .add("klipper-mpc.cfg", "text/plain", ex::klipper_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
@@ -255,7 +280,14 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     ])
 }
 
-fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experiment], responses: &BTreeMap<String, control::Response>, source: &serde_json::Value) -> Report {
+fn report(
+    title: &str,
+    entries: &[Entry],
+    cv: &CrossValidation,
+    verif: &[Experiment],
+    responses: &BTreeMap<String, control::Response>,
+    source: &serde_json::Value,
+) -> Report {
     let mut r = Report::new(title);
     r.paragraph("Synthetic step tests from the physical twin on the source's identification grid (table 1) and verification grid (table 3). Black-box models are fitted per identification set as in the source; the grey box is fitted on all four sets with fan duty and head height as inputs.");
     r.heading("Fit by order (each identification set, own data)");
@@ -268,7 +300,11 @@ fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experim
     for set in sets {
         let mut fit_plot = LinePlot::new(format!("Fit by order, {set}"), "order", "fit %");
         for &f in &families {
-            let pts: Vec<(f64, f64)> = entries.iter().filter(|e| e.label.split_once('/').is_some_and(|(s, _)| s == set) && e.model.family == f).map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0))).collect();
+            let pts: Vec<(f64, f64)> = entries
+                .iter()
+                .filter(|e| e.label.split_once('/').is_some_and(|(s, _)| s == set) && e.model.family == f)
+                .map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0)))
+                .collect();
             if !pts.is_empty() {
                 fit_plot = fit_plot.line_points(f.name(), pts);
             }
@@ -303,7 +339,8 @@ fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experim
     }
     r.heading("Closed loop on the best generaliser");
     let mut plot = LinePlot::new("Closed-loop responses", "time (s)", "rise above ambient (°C)");
-    let mut mt = Table::new("Closed-loop metrics (heater duty saturated to 0..1)", ["design", "RMS after reach (°C)", "overshoot %", "settling (s)", "effort (duty·s)"]);
+    let mut mt =
+        Table::new("Closed-loop metrics (heater duty saturated to 0..1)", ["design", "RMS after reach (°C)", "overshoot %", "settling (s)", "effort (duty·s)"]);
     for (key, resp) in ["state_feedback", "simc", "imc"].iter().filter_map(|k| responses.get(*k).map(|r| (*k, r))) {
         plot = plot.line(key, resp.time_s.iter().zip(&resp.y).map(|(a, b)| (*a, *b)).collect());
         let m = &resp.metrics;
@@ -313,7 +350,10 @@ fn report(title: &str, entries: &[Entry], cv: &CrossValidation, verif: &[Experim
     r.plot(plot);
     r.table(mt);
     r.heading("The source's designs (published matrices)");
-    let mut st = Table::new("Ackermann-type placement with all poles equal; M = [C(BL−A)⁻¹B]⁻¹", ["model", "pole (1/s)", "M", "RMS after reach (°C, 130 °C target, u ≤ 255)"]);
+    let mut st = Table::new(
+        "Ackermann-type placement with all poles equal; M = [C(BL−A)⁻¹B]⁻¹",
+        ["model", "pole (1/s)", "M", "RMS after reach (°C, 130 °C target, u ≤ 255)"],
+    );
     for d in source.as_array().into_iter().flatten() {
         st.push([
             d["model"].as_str().unwrap_or("").to_string(),
