@@ -96,12 +96,26 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
             inputs.push(InputRef { name: format!("file:{}", file_label(&spec, f)), hash: hash.clone() });
             files.insert(f.clone(), hash);
         }
+        for (label, hash) in &stage.artifacts {
+            if !store.has(hash) {
+                return Err(Error::Stage { stage: stage.name.clone(), message: format!("artifact `{label}` ({}) is not in the store", hash.0) });
+            }
+            inputs.push(InputRef { name: format!("artifact:{label}"), hash: hash.clone() });
+        }
         let key = stage_key(&kind, stage, &inputs);
         let cached = if opts.force { None } else { load_stage(store, &key) };
         let (record, was_cached) = match cached {
             Some(r) => (r, true),
             None => {
-                let input = StageInput { seed: spec.header.seed, params: &stage.params, store, upstream: &upstream, files: &files, stage: &stage.name };
+                let input = StageInput {
+                    seed: spec.header.seed,
+                    params: &stage.params,
+                    store,
+                    upstream: &upstream,
+                    files: &files,
+                    artifacts: &stage.artifacts,
+                    stage: &stage.name,
+                };
                 let out = (stage.run)(&input).map_err(|e| match e {
                     Error::Io { .. } | Error::Store(_) | Error::Stage { .. } => e,
                     other if other.is_bad_input() => other,
@@ -183,7 +197,9 @@ fn stage_path(store: &Store, key: &str) -> PathBuf {
 fn load_stage(store: &Store, key: &str) -> Option<StageRecord> {
     let bytes = std::fs::read(stage_path(store, key)).ok()?;
     let rec: StageRecord = serde_json::from_slice(&bytes).ok()?;
-    rec.outputs.iter().all(|o| store.has(&o.hash)).then_some(rec)
+    // A hit re-reads (and so re-hashes) every blob it reuses: a corrupt or
+    // missing intermediate makes the stage run again, never a false hit.
+    rec.outputs.iter().all(|o| store.get(&o.hash).is_ok()).then_some(rec)
 }
 
 fn save_stage(store: &Store, rec: &StageRecord) -> Result<()> {

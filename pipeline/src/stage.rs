@@ -24,6 +24,8 @@ pub struct Stage {
     pub deps: Vec<String>,
     /// External input files (hashed into the key and stored as blobs).
     pub files: Vec<PathBuf>,
+    /// Stored artifacts of other runs, by label and hash (part of the key).
+    pub artifacts: Vec<(String, Hash)>,
     /// The work.
     pub run: StageFn,
 }
@@ -31,7 +33,17 @@ pub struct Stage {
 impl Stage {
     /// A stage with no deps and no files.
     pub fn new(name: &str, version: u32, params: serde_json::Value, run: impl Fn(&StageInput) -> Result<StageOutput> + Send + Sync + 'static) -> Stage {
-        Stage { name: name.to_string(), version, params, deps: Vec::new(), files: Vec::new(), run: Box::new(run) }
+        Stage { name: name.to_string(), version, params, deps: Vec::new(), files: Vec::new(), artifacts: Vec::new(), run: Box::new(run) }
+    }
+    /// A stage whose parameters are its own typed struct `P`: the key holds
+    /// `P` as JSON and the work receives the same `P`, so no stage reads an
+    /// untyped key with a fallback default.
+    pub fn typed<P>(name: &str, version: u32, params: P, run: impl Fn(&StageInput, &P) -> Result<StageOutput> + Send + Sync + 'static) -> Result<Stage>
+    where
+        P: Serialize + Send + Sync + 'static,
+    {
+        let json = serde_json::to_value(&params).map_err(|e| Error::Stage { stage: name.to_string(), message: format!("parameters: {e}") })?;
+        Ok(Stage::new(name, version, json, move |input| run(input, &params)))
     }
     /// Add upstream stages (builder style).
     pub fn after(mut self, deps: &[&str]) -> Stage {
@@ -41,6 +53,12 @@ impl Stage {
     /// Add external input files (builder style).
     pub fn reading(mut self, files: Vec<PathBuf>) -> Stage {
         self.files.extend(files);
+        self
+    }
+    /// Read a stored artifact (of any run) by hash under `label` (builder
+    /// style); the stage reads it with [`StageInput::artifact`].
+    pub fn using(mut self, label: &str, hash: Hash) -> Stage {
+        self.artifacts.push((label.to_string(), hash));
         self
     }
 }
@@ -146,6 +164,7 @@ pub struct StageInput<'a> {
     pub(crate) store: &'a Store,
     pub(crate) upstream: &'a BTreeMap<String, Vec<OutputRef>>,
     pub(crate) files: &'a BTreeMap<PathBuf, Hash>,
+    pub(crate) artifacts: &'a [(String, Hash)],
     pub(crate) stage: &'a str,
 }
 
@@ -173,11 +192,24 @@ impl StageInput<'_> {
             .ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("file `{}` was not declared as an input", path.display()) })?;
         self.store.get(hash)
     }
+    /// Bytes of the stored artifact declared with [`Stage::using`] under `label`.
+    pub fn artifact(&self, label: &str) -> Result<Vec<u8>> {
+        let (_, hash) = self
+            .artifacts
+            .iter()
+            .find(|(l, _)| l == label)
+            .ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("artifact `{label}` was not declared as an input") })?;
+        self.store.get(hash)
+    }
     /// This stage's parameters deserialised into `T`.
     pub fn params<T: DeserializeOwned>(&self) -> Result<T> {
         serde_json::from_value(self.params.clone()).map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("parameters: {e}") })
     }
 }
+
+/// The code identity in every stage key: a new fdmlab version never reuses a
+/// stage computed by an older one, even where a stage version was not bumped.
+pub const CODE_IDENTITY: &str = concat!("fdmlab ", env!("CARGO_PKG_VERSION"));
 
 /// The cache key of a stage.
 pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
@@ -185,6 +217,7 @@ pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
         "kind": kind,
         "stage": stage.name,
         "version": stage.version,
+        "code": CODE_IDENTITY,
         "params": stage.params,
         "inputs": inputs,
     });

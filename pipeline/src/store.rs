@@ -114,11 +114,12 @@ impl Store {
         self.blob_path(hash).is_file()
     }
 
-    /// Store `bytes`; returns their hash. Idempotent and safe under concurrency.
+    /// Store `bytes`; returns their hash. Idempotent and safe under concurrency;
+    /// a stored blob that no longer hashes to its name is replaced.
     pub fn put(&self, bytes: &[u8]) -> Result<Hash> {
         let hash = Hash::of(bytes);
         let path = self.blob_path(&hash);
-        if !path.is_file() {
+        if !path.is_file() || self.get(&hash).is_err() {
             self.write_atomic(&path, bytes)?;
             make_readonly(&path);
         }
