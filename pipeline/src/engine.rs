@@ -93,7 +93,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
         for f in &stage.files {
             let bytes = std::fs::read(f).map_err(|e| Error::io(f, e))?;
             let hash = store.put(&bytes)?;
-            inputs.push(InputRef { name: format!("file:{}", file_label(&spec, f)), hash: hash.clone() });
+            inputs.push(InputRef { name: format!("file:{}", file_label(spec, f)), hash: hash.clone() });
             files.insert(f.clone(), hash);
         }
         for (label, hash) in &stage.artifacts {

@@ -235,9 +235,12 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
 
+/// A file's name (as recorded) and its text.
+type NamedText = (String, String);
+
 /// Parse every log; returns the experiments and each file's (name, text) for
 /// [`store_inputs`] once the store is open (bad input writes nothing).
-fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<(String, String)>)> {
+fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<NamedText>)> {
     let mut exps = Vec::new();
     let mut files = Vec::new();
     for p in paths {

@@ -306,6 +306,7 @@ impl Emitter {
         Ok(())
     }
 
+    #[allow(clippy::too_many_arguments)] // position, size and the three rates of one label
     fn label(&mut self, text: &str, x: f64, y: f64, h: f64, e_per_mm: f64, speed: f64, travel: f64) -> Result<(), DatasetError> {
         let (strokes, _) = super::digits::strokes(text, x, y, h).map_err(|c| refuse(format!("label `{text}`: cannot draw {c:?}")))?;
         for ((x0, y0), (x1, y1)) in strokes {
@@ -375,7 +376,7 @@ pub fn write(printer: &Printer, cal: &Calibration) -> Result<CalibrationGcode, D
         )));
     }
     // K range.
-    if !(cal.k_step.is_finite() && cal.k_step > 0.0) || !(cal.k_start.is_finite() && cal.k_end.is_finite()) || cal.k_end < cal.k_start {
+    if !(cal.k_step.is_finite() && cal.k_step > 0.0 && cal.k_start.is_finite() && cal.k_end.is_finite()) || cal.k_end < cal.k_start {
         return Err(refuse(format!("K range {}..{} step {} is not increasing", cal.k_start, cal.k_end, cal.k_step)));
     }
     let (k_lo, k_hi) = fw.k_range();
@@ -619,7 +620,10 @@ mod tests {
     /// Moves of a program read back with the shared reader, each with the K_A in
     /// force (from `M900 K`, `SET_PRESSURE_ADVANCE ADVANCE=` or `M572 S`) and the
     /// printing acceleration in force.
-    fn moves(text: &str) -> Vec<(String, [f64; 4], [f64; 4], f64, Option<f64>, Option<f64>)> {
+    /// A move read back: command, start and end (X, Y, Z, E), feed, K_A and acceleration in force.
+    type Move = (String, [f64; 4], [f64; 4], f64, Option<f64>, Option<f64>);
+
+    fn moves(text: &str) -> Vec<Move> {
         let program = crate::gcode::parse(text, "cal.gcode").expect("writer output parses");
         let mut m = crate::gcode::Machine::default();
         let (mut k, mut accel) = (None, None);

@@ -32,9 +32,12 @@ fn segments_of(c: char) -> Option<&'static [u8]> {
     })
 }
 
+/// A straight stroke from one point to another, mm.
+pub type Stroke = ((f64, f64), (f64, f64));
+
 /// Strokes of `text` (digits and '.') starting at `(x, y)` with character height `h`;
 /// returns the strokes and the text's width. Other characters are an error.
-pub fn strokes(text: &str, x: f64, y: f64, h: f64) -> Result<(Vec<((f64, f64), (f64, f64))>, f64), char> {
+pub fn strokes(text: &str, x: f64, y: f64, h: f64) -> Result<(Vec<Stroke>, f64), char> {
     let w = h / 2.0;
     let gap = h / 4.0;
     let mut out = Vec::new();

@@ -85,7 +85,8 @@ impl RawLog {
             return Err(DatasetError::parse(&self.file, 0, "time_s", format!("need at least 3 samples, found {n}")));
         }
         let median = self.median_dt_s();
-        let pick: Box<dyn Fn(&[f64], bool) -> Vec<f64>> = match how.resample_s {
+        type Pick = Box<dyn Fn(&[f64], bool) -> Vec<f64>>;
+        let pick: Pick = match how.resample_s {
             None => {
                 if let Some((k, d)) = self.time_s.windows(2).map(|w| w[1] - w[0]).enumerate().find(|(_, d)| (d - median).abs() > UNIFORM_TOLERANCE * median) {
                     return Err(DatasetError::parse(

@@ -74,7 +74,7 @@ impl OrthogonalArray {
     pub fn is_orthogonal(&self) -> bool {
         let l = usize::from(self.levels);
         let n = self.runs();
-        if l == 0 || !n.is_multiple_of(l * l) || self.rows.iter().any(|r| r.len() != self.columns()) {
+        if l == 0 || n % (l * l) != 0 || self.rows.iter().any(|r| r.len() != self.columns()) {
             return false;
         }
         for i in 0..self.columns() {

@@ -71,6 +71,7 @@ impl Polynomials {
 
 /// Lagged-regressor least squares: columns are `−y(k−1..k−na)`, `u_j(k−1..k−nb)`,
 /// `e(k−1..k−nc)` for the supplied `e`; rows start at `max(na, nb, nc)`.
+#[allow(clippy::too_many_arguments)] // the textbook's regressor orders, named
 fn regress(
     data: &[Series],
     target: &[&[f64]],

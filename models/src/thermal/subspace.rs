@@ -29,6 +29,9 @@ use super::ss::StateSpace;
 use crate::ModelError;
 use nalgebra::{DMatrix, DVector};
 
+/// A candidate `(A, C)` pair of a subspace model.
+type AcPair = (DMatrix<f64>, DMatrix<f64>);
+
 /// Which subspace weighting to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -137,7 +140,7 @@ impl Prepared {
 
     /// Candidate `(A, C)` pairs of order `n`: shift invariance, then state-sequence
     /// regression over every experiment in `data` (the data `prepare` saw).
-    pub fn candidates(&self, data: &[Series], n: usize, method: Method) -> Result<Vec<(DMatrix<f64>, DMatrix<f64>)>, ModelError> {
+    pub fn candidates(&self, data: &[Series], n: usize, method: Method) -> Result<Vec<AcPair>, ModelError> {
         let (i, m) = (self.horizon, self.inputs);
         if n == 0 || n >= i {
             return Err(ModelError::invalid("order", n, &format!("must be within 1..{} for horizon {i}", i - 1)));
@@ -166,7 +169,7 @@ impl Prepared {
         let k_map = &gamma_pinv * l32 * pinv(l22)?;
         let (mut zz, mut xz, mut yx) = (DMatrix::<f64>::zeros(n + m, n + m), DMatrix::<f64>::zeros(n, n + m), DMatrix::<f64>::zeros(1, n));
         let mut w = DVector::<f64>::zeros(p);
-        for s in data.iter().filter(|s| s.y.len() >= 2 * i + 1) {
+        for s in data.iter().filter(|s| s.y.len() > 2 * i) {
             let states: Vec<DVector<f64>> = (0..=s.y.len() - i)
                 .map(|c| {
                     for b in 0..i {
