@@ -80,6 +80,10 @@ enum ExportCommand {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let ctx = cmd::Ctx::new(cli.store, cli.json);
+    if let Err(e) = cmd::configure_threads() {
+        eprintln!("error: {e:#}");
+        return ExitCode::from(cmd::exit_code(&e));
+    }
     let result = match cli.command {
         Command::Run(a) => cmd::run::run(a, &ctx),
         Command::Validate(a) => cmd::run::validate(a, &ctx),

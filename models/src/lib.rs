@@ -11,6 +11,7 @@ pub mod hbot;
 pub mod metrics;
 pub mod nets;
 pub mod nonfinite;
+pub mod parallel;
 pub mod regress;
 pub mod rng;
 pub mod thermal;

@@ -5,8 +5,8 @@ use crate::error::{Error, Result};
 use crate::kinds;
 use crate::runs::{self, LockFile, RunRecord, StageRun};
 use crate::spec::SpecFile;
-use crate::stage::{stage_key, InputRef, OutputRef, Stage, StageInput, StageRecord};
-use crate::store::{Hash, Store};
+use crate::stage::{stage_key, InputRef, OutputRef, Stage, StageInput, StageRecord, CODE_IDENTITY};
+use crate::store::{Hash, Store, WriteKind};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -103,7 +103,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
             inputs.push(InputRef { name: format!("artifact:{label}"), hash: hash.clone() });
         }
         let key = stage_key(&kind, stage, &inputs);
-        let cached = if opts.force { None } else { load_stage(store, &key) };
+        let cached = if opts.force { None } else { load_stage(store, &key, stage.version) };
         let (record, was_cached) = match cached {
             Some(r) => (r, true),
             None => {
@@ -135,13 +135,14 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
                     kind: kind.clone(),
                     stage: stage.name.clone(),
                     version: stage.version,
+                    code: CODE_IDENTITY.to_string(),
                     params: stage.params.clone(),
                     inputs: inputs.clone(),
                     outputs,
                     metrics: out.metrics,
                     wall_s: t0.elapsed().as_secs_f64(),
                 };
-                save_stage(store, &record)?;
+                store.write_stage_record(&record)?;
                 (record, false)
             }
         };
@@ -169,7 +170,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
         id,
         experiment: spec.header.name.clone(),
         kind,
-        spec_path: spec.path.display().to_string(),
+        spec_path: portable_path(&spec.path),
         spec_hash: Hash::of(spec.text.as_bytes()).0,
         seed: spec.header.seed,
         fdmlab_version: env!("CARGO_PKG_VERSION").into(),
@@ -189,22 +190,28 @@ fn file_label(spec: &SpecFile, f: &Path) -> String {
     f.strip_prefix(spec.dir()).unwrap_or(f).display().to_string()
 }
 
-fn stage_path(store: &Store, key: &str) -> PathBuf {
-    store.root().join("stages").join(format!("{key}.json"))
+/// A path as a run record holds it: relative to the working folder when it
+/// lies inside it, else its file name alone, so a record names no machine path.
+pub fn portable_path(path: &Path) -> String {
+    let cwd = std::env::current_dir().ok();
+    let relative = if path.is_absolute() { cwd.as_deref().and_then(|c| path.strip_prefix(c).ok()) } else { Some(path) };
+    match relative {
+        Some(r) => r.display().to_string(),
+        None => path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
+    }
 }
 
-/// A stored stage result, if its record is readable and every blob is present.
-fn load_stage(store: &Store, key: &str) -> Option<StageRecord> {
-    let bytes = std::fs::read(stage_path(store, key)).ok()?;
-    let rec: StageRecord = serde_json::from_slice(&bytes).ok()?;
+/// A stored stage result, if its record is readable, was made by this code
+/// for this key and stage version, and every blob it names is intact.
+fn load_stage(store: &Store, key: &str, version: u32) -> Option<StageRecord> {
+    // An unreadable record is a miss: the stage runs and its record is rewritten.
+    let rec = store.stage_record(key).ok()??;
+    if rec.key != key || rec.version != version || rec.code != CODE_IDENTITY {
+        return None;
+    }
     // A hit re-reads (and so re-hashes) every blob it reuses: a corrupt or
     // missing intermediate makes the stage run again, never a false hit.
     rec.outputs.iter().all(|o| store.get(&o.hash).is_ok()).then_some(rec)
-}
-
-fn save_stage(store: &Store, rec: &StageRecord) -> Result<()> {
-    let bytes = serde_json::to_vec_pretty(rec).map_err(|e| Error::Store(e.to_string()))?;
-    store.write_atomic(&stage_path(store, &rec.key), &bytes)
 }
 
 fn write_lock(store: &Store, spec: &SpecFile, record: &RunRecord) -> Result<()> {
@@ -216,36 +223,17 @@ fn write_lock(store: &Store, spec: &SpecFile, record: &RunRecord) -> Result<()> 
     if std::fs::read(&path).ok().as_deref() == Some(&bytes[..]) {
         return Ok(());
     }
-    let tmp = store.root().join("tmp");
-    crate::store::write_atomic_via(&tmp, &path, &bytes)
+    crate::store::write_staged(&store.tmp_dir(), &path, &bytes, WriteKind::Lock)
 }
 
-/// Copy the outputs of the `report` stage to `reports/<experiment>/`, swapping
-/// the whole folder in by rename so readers never see a half-written report.
+/// Copy the outputs of the `report` stage to the store's report folder of
+/// the experiment; returns that folder relative to the store root.
 fn materialise_reports(store: &Store, experiment: &str, stages: &[StageRun]) -> Result<Option<PathBuf>> {
     let Some(report) = stages.iter().find(|s| s.name == "report") else {
         return Ok(None);
     };
-    let final_dir = store.root().join("reports").join(experiment);
-    let staging = store.root().join("tmp").join(crate::store::unique_name("report"));
-    std::fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
-    for o in &report.outputs {
-        let bytes = store.get(&o.hash)?;
-        let p = staging.join(&o.name);
-        std::fs::write(&p, bytes).map_err(|e| Error::io(&p, e))?;
-    }
-    for _ in 0..10 {
-        if final_dir.exists() {
-            let old = store.root().join("tmp").join(crate::store::unique_name("old-report"));
-            let _ = std::fs::rename(&final_dir, &old);
-            let _ = std::fs::remove_dir_all(&old);
-        }
-        if std::fs::rename(&staging, &final_dir).is_ok() {
-            return Ok(Some(final_dir));
-        }
-    }
-    let _ = std::fs::remove_dir_all(&staging);
-    Err(Error::Store(format!("could not replace {}", final_dir.display())))
+    let files = report.outputs.iter().map(|o| Ok((o.name.clone(), store.get(&o.hash)?))).collect::<Result<Vec<_>>>()?;
+    store.replace_report(experiment, &files).map(Some)
 }
 
 fn git_rev(dir: &Path) -> Option<String> {

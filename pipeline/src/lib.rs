@@ -1,12 +1,21 @@
 //! fdmlab-pipeline: spec schema, stage graph, content-addressed store, runs.
 //!
 //! `spec` parses and locates; `kinds` turns a spec into `stage`s; `engine`
-//! keys, caches and runs them on a `store`; `runs` records what happened.
+//! keys, caches and runs them on a `store` (which alone knows its folder
+//! layout); `records` are what it stores, `runs` queries them, and
+//! `maintenance` verifies and collects garbage.
+//!
+//! Module dependencies (no cycles): `hash` ← `records` ← `store` ← `runs` ←
+//! `maintenance`; `stage` ← `kinds` ← `engine`.
 
 pub mod engine;
 pub mod error;
+pub mod hash;
 pub mod kinds;
+pub mod maintenance;
 pub mod names;
+pub mod records;
+pub mod requests;
 pub mod runs;
 pub mod spec;
 pub mod stage;

@@ -2,7 +2,9 @@
 //! and diffs between runs.
 
 use crate::error::{Error, Result};
-use crate::stage::{Artifact, InputRef, OutputRef};
+use crate::records::{InputRef, OutputRef};
+pub use crate::records::{RunRecord, StageRun};
+use crate::stage::Artifact;
 use crate::store::{Hash, Store};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -11,74 +13,10 @@ use std::io::ErrorKind;
 use std::path::PathBuf;
 use std::time::SystemTime;
 
-/// One stage as it happened in a run.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StageRun {
-    /// Stage name.
-    pub name: String,
-    /// Cache key.
-    pub key: String,
-    /// Stage version.
-    pub version: u32,
-    /// True when the result came from the store without running.
-    pub cached: bool,
-    /// Validated parameters.
-    pub params: serde_json::Value,
-    /// Inputs.
-    pub inputs: Vec<InputRef>,
-    /// Outputs.
-    pub outputs: Vec<OutputRef>,
-    /// Scalar results (non-finite ones stored as `null`).
-    #[serde(with = "fdmlab_models::nonfinite::map")]
-    pub metrics: BTreeMap<String, f64>,
-    /// Wall time in this run, s (≈ 0 when cached).
-    pub wall_s: f64,
-}
-
-/// The record of one `fdmlab run` or artifact-producing command.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RunRecord {
-    /// Run id: `YYYYMMDD-HHMMSS.micros-<6 hex>` (UTC), sortable by start time.
-    pub id: String,
-    /// Experiment name (or the command for one-shot commands).
-    pub experiment: String,
-    /// Experiment kind (`command` for one-shot commands).
-    pub kind: String,
-    /// Spec path as given (empty for commands).
-    pub spec_path: String,
-    /// blake3 of the spec text (or of the command's parameters).
-    pub spec_hash: String,
-    /// Seed.
-    pub seed: u64,
-    /// fdmlab version that ran it.
-    pub fdmlab_version: String,
-    /// `git rev-parse HEAD` of the spec's folder, when available.
-    pub git_rev: Option<String>,
-    /// Start time, UTC, ISO 8601.
-    pub started_at: String,
-    /// Wall time, s.
-    pub wall_s: f64,
-    /// Stages in execution order.
-    pub stages: Vec<StageRun>,
-    /// Where the reports were materialised, if any.
-    pub reports_dir: Option<String>,
-}
-
-impl RunRecord {
-    /// Number of stages that actually ran (not cached).
-    pub fn stages_run(&self) -> usize {
-        self.stages.iter().filter(|s| !s.cached).count()
-    }
-    /// Every blob hash the run references (inputs and outputs).
-    pub fn blobs(&self) -> impl Iterator<Item = &Hash> {
-        self.stages.iter().flat_map(|s| s.inputs.iter().map(|i| &i.hash).chain(s.outputs.iter().map(|o| &o.hash)))
-    }
-}
-
 /// Create a fresh run folder and return its id (unique even for runs started
 /// in the same second by several processes).
 pub fn new_run_id(store: &Store) -> Result<String> {
-    let runs = store.root().join("runs");
+    let runs = store.runs_dir();
     for attempt in 0..100u32 {
         let seed = format!("{}-{attempt}", crate::store::unique_name("run"));
         let suffix = &Hash::of(seed.as_bytes()).0[..6];
@@ -94,9 +32,7 @@ pub fn new_run_id(store: &Store) -> Result<String> {
 
 /// Write a run record atomically.
 pub fn write_record(store: &Store, record: &RunRecord) -> Result<()> {
-    let path = store.root().join("runs").join(&record.id).join("run.json");
-    let bytes = serde_json::to_vec_pretty(record).map_err(|e| Error::Store(e.to_string()))?;
-    store.write_atomic(&path, &bytes)
+    store.write_run_record(record)
 }
 
 /// What the `runs/` folder holds.
@@ -129,7 +65,7 @@ impl std::fmt::Display for Unreadable {
 /// Read every run folder.
 pub fn scan(store: &Store) -> RunScan {
     let mut out = RunScan::default();
-    let dir = store.root().join("runs");
+    let dir = store.runs_dir();
     let entries = match fs::read_dir(&dir) {
         Ok(entries) => entries,
         Err(e) if e.kind() == ErrorKind::NotFound => return out,
@@ -146,11 +82,9 @@ pub fn scan(store: &Store) -> RunScan {
                 continue;
             }
         };
-        let record = path.join("run.json");
-        let unreadable = |e: &dyn std::fmt::Display| Unreadable {
-            message: format!("{}: {e}", record.display()),
-            id: path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
-        };
+        let id = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+        let record = store.run_record_path(&id);
+        let unreadable = |e: &dyn std::fmt::Display| Unreadable { message: format!("{}: {e}", record.display()), id: id.clone() };
         match fs::read(&record) {
             Ok(bytes) => match serde_json::from_slice::<RunRecord>(&bytes) {
                 Ok(r) => out.runs.push(r),
@@ -176,7 +110,7 @@ pub fn list(store: &Store) -> Vec<RunRecord> {
 /// Drop the folder of a run that failed before writing its record.
 pub fn abandon(store: &Store, id: &str) {
     // Best effort: an empty folder left behind only makes `gc` cautious.
-    let _ = fs::remove_dir(store.root().join("runs").join(id));
+    let _ = fs::remove_dir(store.runs_dir().join(id));
 }
 
 /// Find a run by id or unique id prefix; `latest` is the newest run.
@@ -244,44 +178,6 @@ pub fn record_command(
     };
     write_record(store, &record)?;
     Ok(record)
-}
-
-/// Blobs and stage keys referenced by records.
-#[derive(Debug, Default)]
-pub(crate) struct References {
-    pub blobs: BTreeSet<Hash>,
-    pub stage_keys: BTreeSet<String>,
-    pub bad_records: Vec<String>,
-}
-
-/// What run records reference (used by `gc`). An unreadable run record is an
-/// error: its blobs would otherwise look unreferenced and be deleted.
-pub(crate) fn referenced_by_runs(scan: &RunScan) -> Result<References> {
-    if let Some(first) = scan.bad.first() {
-        return Err(Error::Store(format!("refusing to collect garbage: {} run record(s) cannot be read, first {first}", scan.bad.len())));
-    }
-    let mut refs = References::default();
-    for r in &scan.runs {
-        refs.blobs.extend(r.blobs().cloned());
-        refs.stage_keys.extend(r.stages.iter().map(|s| s.key.clone()));
-    }
-    Ok(refs)
-}
-
-/// What run records and stage records reference (used by `verify`).
-pub(crate) fn referenced(store: &Store) -> References {
-    let RunScan { runs, bad, .. } = scan(store);
-    let mut refs = References { bad_records: bad.into_iter().map(|u| u.message).collect(), ..References::default() };
-    for r in runs {
-        refs.blobs.extend(r.blobs().cloned());
-    }
-    for e in fs::read_dir(store.root().join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
-        match fs::read(e.path()).ok().and_then(|b| serde_json::from_slice::<crate::stage::StageRecord>(&b).ok()) {
-            Some(s) => refs.blobs.extend(s.inputs.iter().map(|i| i.hash.clone()).chain(s.outputs.iter().map(|o| o.hash.clone()))),
-            None => refs.bad_records.push(e.path().display().to_string()),
-        }
-    }
-    refs
 }
 
 /// One line of a run diff.

@@ -3,9 +3,10 @@
 //! input artifact hashes): same key, same outputs, so a stored result is reused.
 
 use crate::error::{Error, Result};
+pub use crate::records::{InputRef, OutputRef, StageRecord};
 use crate::store::{Hash, Store};
 use serde::de::DeserializeOwned;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -61,52 +62,6 @@ impl Stage {
         self.artifacts.push((label.to_string(), hash));
         self
     }
-}
-
-/// A named input of a stage and its hash.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-pub struct InputRef {
-    /// `stage/output` for upstream outputs, `file:<path>` for external files.
-    pub name: String,
-    /// Content hash.
-    pub hash: Hash,
-}
-
-/// An artifact a stage produced, as recorded.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct OutputRef {
-    /// Output name, unique within the stage (a safe file name).
-    pub name: String,
-    /// Content hash.
-    pub hash: Hash,
-    /// Media type (`application/json`, `text/csv`, `text/x-gcode`, ...).
-    pub media_type: String,
-    /// Size in bytes.
-    pub bytes: u64,
-}
-
-/// What the store remembers of a finished stage (`stages/<key>.json`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StageRecord {
-    /// Cache key.
-    pub key: String,
-    /// Experiment kind.
-    pub kind: String,
-    /// Stage name.
-    pub stage: String,
-    /// Stage version.
-    pub version: u32,
-    /// Validated parameters.
-    pub params: serde_json::Value,
-    /// Inputs.
-    pub inputs: Vec<InputRef>,
-    /// Outputs.
-    pub outputs: Vec<OutputRef>,
-    /// Scalar results (non-finite ones stored as `null`).
-    #[serde(with = "fdmlab_models::nonfinite::map")]
-    pub metrics: BTreeMap<String, f64>,
-    /// Wall time of the run that produced it, s.
-    pub wall_s: f64,
 }
 
 /// A produced artifact before it is stored.
@@ -213,14 +168,50 @@ pub const CODE_IDENTITY: &str = concat!("fdmlab ", env!("CARGO_PKG_VERSION"));
 
 /// The cache key of a stage.
 pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
+    key_of(CODE_IDENTITY, kind, stage, inputs)
+}
+
+/// The cache key of a stage as built by `code`.
+fn key_of(code: &str, kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
     let material = serde_json::json!({
         "kind": kind,
         "stage": stage.name,
         "version": stage.version,
-        "code": CODE_IDENTITY,
+        "code": code,
         "params": stage.params,
         "inputs": inputs,
     });
     // serde_json maps are ordered (BTreeMap), so this text is canonical.
     Hash::of(material.to_string().as_bytes()).0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Serialize)]
+    struct P {
+        x: f64,
+    }
+
+    fn stage(version: u32, x: f64) -> Stage {
+        Stage::typed("s", version, P { x }, |_, _| Ok(StageOutput::default())).expect("stage")
+    }
+
+    #[test]
+    fn the_key_changes_with_code_version_params_and_inputs() {
+        let inputs = vec![InputRef { name: "a/b".into(), hash: Hash::of(b"b") }];
+        let base = key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &inputs);
+        assert_eq!(base, key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &inputs), "deterministic");
+        for other in [
+            key_of("fdmlab 0.1.1", "k", &stage(1, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", &stage(2, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", &stage(1, 1.5), &inputs),
+            key_of("fdmlab 0.1.0", "other-kind", &stage(1, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &[InputRef { name: "a/b".into(), hash: Hash::of(b"c") }]),
+        ] {
+            assert_ne!(base, other);
+        }
+        assert_eq!(stage_key("k", &stage(1, 1.0), &inputs), key_of(CODE_IDENTITY, "k", &stage(1, 1.0), &inputs));
+    }
 }

@@ -11,76 +11,61 @@
 //! stray file in `tmp/`, never a partial blob. Reads re-hash and refuse corrupt blobs.
 
 use crate::error::{Error, Result};
-use serde::{Deserialize, Serialize};
+pub use crate::hash::Hash;
+use crate::records::{RunRecord, StageRecord};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::SystemTime;
 
-/// A blake3 content hash, 64 lower-case hex digits.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct Hash(pub String);
+const OBJECTS: &str = "objects";
+const STAGES: &str = "stages";
+const RUNS: &str = "runs";
+const RUN_RECORD: &str = "run.json";
+const REPORTS: &str = "reports";
+const TMP: &str = "tmp";
 
-impl Hash {
-    /// Hash of `bytes`.
-    pub fn of(bytes: &[u8]) -> Hash {
-        Hash(blake3::hash(bytes).to_hex().to_string())
-    }
-    /// The hex digits.
-    pub fn as_str(&self) -> &str {
-        &self.0
-    }
-    /// Parse a full 64-digit hex hash.
-    pub fn parse(s: &str) -> Option<Hash> {
-        (s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit() && !b.is_ascii_uppercase())).then(|| Hash(s.to_string()))
-    }
+/// One file of `stages/`.
+#[derive(Debug, Clone)]
+pub struct StageEntry {
+    /// The cache key (file name without `.json`).
+    pub key: String,
+    /// Last modification, when the file system tells.
+    pub modified: Option<SystemTime>,
+    /// The record, or `path: why` it cannot be read.
+    pub record: std::result::Result<StageRecord, String>,
 }
 
-impl std::fmt::Display for Hash {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
+/// Which store write a crash test targets (see [`test_pause`]); also the
+/// prefix of the write's temp file in `tmp/`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WriteKind {
+    /// A content-addressed blob.
+    Blob,
+    /// A stage record (`stages/<key>.json`).
+    Stage,
+    /// A run record (`runs/<id>/run.json`).
+    Run,
+    /// A lock file next to a spec.
+    Lock,
+    /// The report folder swap.
+    Report,
+    /// Any other file written through the store's staging folder.
+    File,
+}
+
+impl WriteKind {
+    /// The name used by `FDMLAB_TEST_PAUSE_WRITE` and as temp-file prefix.
+    pub fn name(self) -> &'static str {
+        match self {
+            WriteKind::Blob => "blob",
+            WriteKind::Stage => "stage",
+            WriteKind::Run => "run",
+            WriteKind::Lock => "lock",
+            WriteKind::Report => "report",
+            WriteKind::File => "file",
+        }
     }
-}
-
-/// Outcome of [`Store::verify`].
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct VerifyReport {
-    /// Blobs re-hashed.
-    pub checked: usize,
-    /// Blobs whose content does not match their name.
-    pub corrupt: Vec<Hash>,
-    /// Blobs referenced by a stage or run record but absent.
-    pub missing: Vec<Hash>,
-    /// Stage or run records that cannot be read.
-    pub bad_records: Vec<String>,
-}
-
-impl VerifyReport {
-    /// True when nothing is wrong.
-    pub fn is_clean(&self) -> bool {
-        self.corrupt.is_empty() && self.missing.is_empty() && self.bad_records.is_empty()
-    }
-}
-
-/// Outcome of [`Store::gc`].
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct GcReport {
-    /// Blobs removed.
-    pub removed_blobs: usize,
-    /// Bytes freed by removed blobs.
-    pub freed_bytes: u64,
-    /// Stage records removed (no run references them).
-    pub removed_stage_records: usize,
-    /// Stale temp files removed.
-    pub removed_temp: usize,
-    /// Unreferenced blobs and stage records kept because they are recent or
-    /// belong to a run in flight.
-    pub kept_recent: usize,
-    /// Runs in flight (folders without a record, younger than a day).
-    pub runs_in_flight: usize,
-    /// Folders of killed runs (no record, older than a day) removed.
-    pub removed_unfinished_runs: usize,
 }
 
 /// A store rooted at a folder.
@@ -92,7 +77,7 @@ pub struct Store {
 impl Store {
     /// Open (creating if needed) the store at `root`.
     pub fn open(root: &Path) -> Result<Store> {
-        for sub in ["objects", "stages", "runs", "reports", "tmp"] {
+        for sub in [OBJECTS, STAGES, RUNS, REPORTS, TMP] {
             let d = root.join(sub);
             fs::create_dir_all(&d).map_err(|e| Error::io(&d, e))?;
         }
@@ -106,7 +91,7 @@ impl Store {
 
     /// Path of the blob named `hash`.
     pub fn blob_path(&self, hash: &Hash) -> PathBuf {
-        self.root.join("objects").join(&hash.0[..2]).join(&hash.0[2..])
+        self.root.join(OBJECTS).join(&hash.0[..2]).join(&hash.0[2..])
     }
 
     /// True when the blob exists (not verified).
@@ -120,7 +105,7 @@ impl Store {
         let hash = Hash::of(bytes);
         let path = self.blob_path(&hash);
         if !path.is_file() || self.get(&hash).is_err() {
-            self.write_atomic(&path, bytes)?;
+            write_staged(&self.tmp_dir(), &path, bytes, WriteKind::Blob)?;
             make_readonly(&path);
         }
         Ok(hash)
@@ -148,7 +133,7 @@ impl Store {
         if prefix.len() < 6 || !prefix.bytes().all(|b| b.is_ascii_hexdigit()) {
             return Err(Error::bad_input(format!("`{prefix}` is neither a run id nor a hash prefix of ≥ 6 hex digits")));
         }
-        let dir = self.root.join("objects").join(&prefix[..2]);
+        let dir = self.root.join(OBJECTS).join(&prefix[..2]);
         let found: Vec<Hash> = fs::read_dir(&dir)
             .into_iter()
             .flatten()
@@ -166,13 +151,13 @@ impl Store {
 
     /// Write `bytes` to `path` atomically (temp file in `tmp/`, fsync, rename).
     pub fn write_atomic(&self, path: &Path, bytes: &[u8]) -> Result<()> {
-        write_atomic_via(&self.root.join("tmp"), path, bytes)
+        write_staged(&self.tmp_dir(), path, bytes, WriteKind::File)
     }
 
     /// Every blob hash in the store.
     pub fn blobs(&self) -> Vec<Hash> {
         let mut out = Vec::new();
-        for d in fs::read_dir(self.root.join("objects")).into_iter().flatten().filter_map(|e| e.ok()) {
+        for d in fs::read_dir(self.root.join(OBJECTS)).into_iter().flatten().filter_map(|e| e.ok()) {
             let pre = d.file_name().to_string_lossy().to_string();
             for f in fs::read_dir(d.path()).into_iter().flatten().filter_map(|e| e.ok()) {
                 if let Some(h) = Hash::parse(&format!("{pre}{}", f.file_name().to_string_lossy())) {
@@ -184,91 +169,109 @@ impl Store {
         out
     }
 
-    /// Re-hash every blob; list corrupt ones and referenced-but-missing ones.
-    pub fn verify(&self) -> VerifyReport {
-        let mut report = VerifyReport::default();
-        for h in self.blobs() {
-            report.checked += 1;
-            match fs::read(self.blob_path(&h)) {
-                Ok(b) if Hash::of(&b) == h => {}
-                _ => report.corrupt.push(h),
-            }
-        }
-        let refs = crate::runs::referenced(self);
-        report.bad_records = refs.bad_records;
-        let mut missing: Vec<Hash> = refs.blobs.into_iter().filter(|h| !self.has(h)).collect();
-        missing.sort();
-        missing.dedup();
-        report.missing = missing;
-        report
+    // Layout: the only place that spells the store's folders and file names.
+
+    /// Staging folder of every write.
+    pub fn tmp_dir(&self) -> PathBuf {
+        self.root.join(TMP)
     }
 
-    /// Remove blobs and stage records no run references, and stale temp files.
-    ///
-    /// What a run in flight has written is not referenced by any record yet,
-    /// so everything modified since the start of the oldest unfinished run (a
-    /// run folder without `run.json`, younger than a day), or in the last
-    /// hour, is kept, with every blob a kept stage record names. Unfinished
-    /// folders older than a day are left by killed runs and are removed.
-    pub fn gc(&self) -> Result<GcReport> {
-        let mut report = GcReport::default();
-        let scan = crate::runs::scan(self);
-        let refs = crate::runs::referenced_by_runs(&scan)?;
-        let now = std::time::SystemTime::now();
-        let (hour, day) = (Duration::from_secs(3600), Duration::from_secs(86_400));
-        let age = |t: std::time::SystemTime| now.duration_since(t).unwrap_or_default();
-        let mut cutoff = now.checked_sub(hour).unwrap_or(std::time::UNIX_EPOCH);
-        for (dir, created) in &scan.unfinished {
-            if age(*created) > day {
-                if fs::remove_dir(dir).is_ok() {
-                    report.removed_unfinished_runs += 1;
-                }
-            } else {
-                cutoff = cutoff.min(*created);
-                report.runs_in_flight += 1;
+    fn stage_path(&self, key: &str) -> PathBuf {
+        self.root.join(STAGES).join(format!("{key}.json"))
+    }
+
+    /// The stage record of `key`: `Ok(None)` when there is none, an error when
+    /// it exists but cannot be read.
+    pub fn stage_record(&self, key: &str) -> Result<Option<StageRecord>> {
+        let path = self.stage_path(key);
+        match fs::read(&path) {
+            Ok(bytes) => serde_json::from_slice(&bytes).map(Some).map_err(|e| Error::Store(format!("{}: {e}", path.display()))),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(Error::io(&path, e)),
+        }
+    }
+
+    /// Store a stage record (atomically, replacing any record of its key).
+    pub fn write_stage_record(&self, rec: &StageRecord) -> Result<()> {
+        let bytes = serde_json::to_vec_pretty(rec).map_err(|e| Error::Store(e.to_string()))?;
+        write_staged(&self.tmp_dir(), &self.stage_path(&rec.key), &bytes, WriteKind::Stage)
+    }
+
+    /// Every stage record file, readable or not, sorted by key.
+    pub fn stage_records(&self) -> Vec<StageEntry> {
+        let mut out: Vec<StageEntry> = fs::read_dir(self.root.join(STAGES))
+            .into_iter()
+            .flatten()
+            .filter_map(|e| e.ok())
+            .filter_map(|e| {
+                let name = e.file_name().to_string_lossy().to_string();
+                let key = name.strip_suffix(".json")?.to_string();
+                let path = e.path();
+                let modified = e.metadata().and_then(|m| m.modified()).ok();
+                let record = fs::read(&path)
+                    .map_err(|e| e.to_string())
+                    .and_then(|b| serde_json::from_slice::<StageRecord>(&b).map_err(|e| e.to_string()))
+                    .map_err(|why| format!("{}: {why}", path.display()));
+                Some(StageEntry { key, modified, record })
+            })
+            .collect();
+        out.sort_by(|a, b| a.key.cmp(&b.key));
+        out
+    }
+
+    /// Delete the stage record of `key`.
+    pub fn remove_stage_record(&self, key: &str) -> Result<()> {
+        let path = self.stage_path(key);
+        fs::remove_file(&path).map_err(|e| Error::io(&path, e))
+    }
+
+    /// The folder holding one folder per run.
+    pub fn runs_dir(&self) -> PathBuf {
+        self.root.join(RUNS)
+    }
+
+    /// The record file of run `id` (inside its run folder).
+    pub fn run_record_path(&self, id: &str) -> PathBuf {
+        self.runs_dir().join(id).join(RUN_RECORD)
+    }
+
+    /// Store a run record (atomically): the run is finished once it lands.
+    pub fn write_run_record(&self, record: &RunRecord) -> Result<()> {
+        let bytes = serde_json::to_vec_pretty(record).map_err(|e| Error::Store(e.to_string()))?;
+        write_staged(&self.tmp_dir(), &self.run_record_path(&record.id), &bytes, WriteKind::Run)
+    }
+
+    /// Where the latest report of `experiment` is, relative to the store root
+    /// (what run records hold, so they name no machine path).
+    pub fn report_dir_relative(experiment: &str) -> PathBuf {
+        Path::new(REPORTS).join(experiment)
+    }
+
+    /// Replace the report folder of `experiment` by `files` (name, bytes),
+    /// swapped in by rename so readers never see a half-written report.
+    /// Returns the folder relative to the store root.
+    pub fn replace_report(&self, experiment: &str, files: &[(String, Vec<u8>)]) -> Result<PathBuf> {
+        let relative = Store::report_dir_relative(experiment);
+        let final_dir = self.root.join(&relative);
+        let staging = self.tmp_dir().join(unique_name(WriteKind::Report.name()));
+        fs::create_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
+        for (name, bytes) in files {
+            let p = staging.join(name);
+            fs::write(&p, bytes).map_err(|e| Error::io(&p, e))?;
+        }
+        test_pause(WriteKind::Report);
+        for _ in 0..10 {
+            if final_dir.exists() {
+                let old = self.tmp_dir().join(unique_name("old-report"));
+                let _ = fs::rename(&final_dir, &old);
+                let _ = fs::remove_dir_all(&old);
+            }
+            if fs::rename(&staging, &final_dir).is_ok() {
+                return Ok(relative);
             }
         }
-        let recent = |p: &Path| fs::metadata(p).and_then(|m| m.modified()).map(|t| t >= cutoff).unwrap_or(true);
-        let mut keep_blobs = refs.blobs;
-        for entry in fs::read_dir(self.root.join("stages")).into_iter().flatten().filter_map(|e| e.ok()) {
-            let name = entry.file_name().to_string_lossy().to_string();
-            let key = name.trim_end_matches(".json");
-            if refs.stage_keys.contains(key) {
-                continue;
-            }
-            if recent(&entry.path()) {
-                let record = fs::read(entry.path()).ok().and_then(|b| serde_json::from_slice::<crate::stage::StageRecord>(&b).ok());
-                match record {
-                    Some(r) => keep_blobs.extend(r.inputs.into_iter().map(|i| i.hash).chain(r.outputs.into_iter().map(|o| o.hash))),
-                    None => return Err(Error::Store(format!("refusing to collect garbage: recent stage record {} cannot be read", entry.path().display()))),
-                }
-                report.kept_recent += 1;
-                continue;
-            }
-            fs::remove_file(entry.path()).map_err(|e| Error::io(&entry.path(), e))?;
-            report.removed_stage_records += 1;
-        }
-        for h in self.blobs() {
-            let p = self.blob_path(&h);
-            if keep_blobs.contains(&h) {
-                continue;
-            }
-            if recent(&p) {
-                report.kept_recent += 1;
-                continue;
-            }
-            report.freed_bytes += fs::metadata(&p).map(|m| m.len()).unwrap_or(0);
-            fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
-            report.removed_blobs += 1;
-        }
-        // Temp files of a writer still running are young; only old ones are litter.
-        for entry in fs::read_dir(self.root.join("tmp")).into_iter().flatten().filter_map(|e| e.ok()) {
-            let old = entry.metadata().and_then(|m| m.modified()).map(|t| t.elapsed().unwrap_or_default() > hour).unwrap_or(false);
-            if old && fs::remove_file(entry.path()).is_ok() {
-                report.removed_temp += 1;
-            }
-        }
-        Ok(report)
+        let _ = fs::remove_dir_all(&staging);
+        Err(Error::Store(format!("could not replace {}", final_dir.display())))
     }
 }
 
@@ -304,7 +307,7 @@ pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
         }
         staged.push((tmp, path));
     }
-    test_pause();
+    test_pause(WriteKind::File);
     for (i, (tmp, path)) in staged.iter().enumerate() {
         if let Err(e) = fs::rename(tmp, path) {
             discard(&staged[i..]);
@@ -317,16 +320,22 @@ pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
 /// Atomic write of `bytes` to `path`, staging the temp file in `tmp_dir`
 /// (which must be on the same file system).
 pub fn write_atomic_via(tmp_dir: &Path, path: &Path, bytes: &[u8]) -> Result<()> {
+    write_staged(tmp_dir, path, bytes, WriteKind::File)
+}
+
+/// [`write_atomic_via`] for a write of a known kind (named in its temp file
+/// and targetable by the crash-test hook).
+pub fn write_staged(tmp_dir: &Path, path: &Path, bytes: &[u8], kind: WriteKind) -> Result<()> {
     if let Some(parent) = path.parent() {
         fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
     fs::create_dir_all(tmp_dir).map_err(|e| Error::io(tmp_dir, e))?;
-    let tmp = tmp_dir.join(unique_name("w"));
+    let tmp = tmp_dir.join(unique_name(kind.name()));
     let result = (|| {
         let mut f = fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
-        test_pause();
+        test_pause(kind);
         fs::rename(&tmp, path)
     })();
     result.map_err(|e| {
@@ -335,14 +344,20 @@ pub fn write_atomic_via(tmp_dir: &Path, path: &Path, bytes: &[u8]) -> Result<()>
     })
 }
 
-/// Crash-safety test hook: `FDMLAB_TEST_PAUSE_BEFORE_RENAME_MS` makes every
-/// atomic write wait between writing its temp file and renaming it, so a test
-/// can SIGKILL the process at the worst moment. Unset, it costs one lookup.
-fn test_pause() {
-    static PAUSE: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    let ms = *PAUSE.get_or_init(|| std::env::var("FDMLAB_TEST_PAUSE_BEFORE_RENAME_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0));
-    if ms > 0 {
-        std::thread::sleep(std::time::Duration::from_millis(ms));
+/// Crash-safety test hook: `FDMLAB_TEST_PAUSE_BEFORE_RENAME_MS` makes atomic
+/// writes wait between writing their temp file (or report folder) and renaming
+/// it, so a test can SIGKILL the process at the worst moment.
+/// `FDMLAB_TEST_PAUSE_WRITE` limits the pause to one [`WriteKind`] (`blob`,
+/// `stage`, `run`, `lock`, `report`, `file`); unset, every write pauses.
+/// Unset, the hook costs one lookup.
+fn test_pause(kind: WriteKind) {
+    static HOOK: std::sync::OnceLock<(u64, Option<String>)> = std::sync::OnceLock::new();
+    let (ms, only) = HOOK.get_or_init(|| {
+        let ms = std::env::var("FDMLAB_TEST_PAUSE_BEFORE_RENAME_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+        (ms, std::env::var("FDMLAB_TEST_PAUSE_WRITE").ok())
+    });
+    if *ms > 0 && only.as_deref().is_none_or(|k| k == kind.name()) {
+        std::thread::sleep(std::time::Duration::from_millis(*ms));
     }
 }
 

@@ -5,12 +5,18 @@
 use crate::{num, LinePlot, Report, Table};
 use fdmlab_models::hbot::compensate::CompensationReport;
 use fdmlab_models::hbot::ident::{Measurement, ScreeningRow, TaguchiResult};
-use fdmlab_models::hbot::study::{DirectStudy, Screening, StudyConfig, StudyData, TaguchiStudy, Verification};
+use fdmlab_models::hbot::sensor::LaserSensor;
+use fdmlab_models::hbot::study::{DirectStudy, Screening, StudyData, TaguchiStudy, Verification};
 use fdmlab_models::hbot::{HbotParams, Param, Twin};
 
 /// Everything the report shows.
 pub struct HbotStudyView<'a> {
-    pub cfg: &'a StudyConfig,
+    /// The hidden true machine.
+    pub truth: &'a HbotParams,
+    /// The starting estimates.
+    pub initial: &'a HbotParams,
+    /// The laser sensor of the measurements.
+    pub sensor: &'a LaserSensor,
     pub data: &'a StudyData,
     pub screening: &'a Screening,
     pub taguchi: &'a TaguchiStudy,
@@ -102,9 +108,9 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
     let mut r = Report::new(title);
     r.paragraph(format!(
         "Identification of the H-Bot belt-drive twin (Cao, Bi & Zou 2021) from synthetic laser measurements (sampling {} s, noise {} µm RMS, resolution {} µm) of the hidden true machine. Objective s = mean |simulated − measured| (mm) over all samples.",
-        v.cfg.sensor.sample_dt_s,
-        num(v.cfg.sensor.noise_sd_m * 1e6, 3),
-        num(v.cfg.sensor.resolution_m * 1e6, 3)
+        v.sensor.sample_dt_s,
+        num(v.sensor.noise_sd_m * 1e6, 3),
+        num(v.sensor.resolution_m * 1e6, 3)
     ));
     r.heading("Screening (0.5× and 2× of the initial estimates)");
     r.table(screening_table("Screening on the y moves (8 mm in 0.75 s and 0.25 s)", &v.screening.y));
@@ -123,7 +129,7 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
     );
     let err = |a: f64, b: f64| if b != 0.0 { num(100.0 * (a - b) / b, 3) } else { "–".into() };
     for p in Param::ALL {
-        let (i, tg, d, tr) = (v.cfg.initial.get(p), v.taguchi.params.get(p), v.direct.params.get(p), v.cfg.truth.get(p));
+        let (i, tg, d, tr) = (v.initial.get(p), v.taguchi.params.get(p), v.direct.params.get(p), v.truth.get(p));
         t.push([p.name().to_string(), p.unit().to_string(), num(i, 4), num(tg, 4), num(d, 4), num(tr, 4), err(tg, tr), err(d, tr)]);
     }
     r.table(t);
@@ -141,7 +147,7 @@ pub fn study_report(title: &str, v: &HbotStudyView) -> Report {
         r.plot(
             LinePlot::new(format!("y move 8 mm in {} s: measured vs simulated", m.mv.duration_s), "time (s)", "y (mm)")
                 .points("measured (laser)", pts(&m.readings_m))
-                .line("initial estimates", pts(&simulated(&v.cfg.initial, m)))
+                .line("initial estimates", pts(&simulated(v.initial, m)))
                 .line("Taguchi", pts(&simulated(&v.taguchi.params, m)))
                 .line("direct (LM)", pts(&simulated(&v.direct.params, m))),
         );

@@ -46,7 +46,7 @@ fn engine_bench(spec: &std::path::Path, repeat: u32, ctx: &Ctx) -> anyhow::Resul
     if !spec.is_file() {
         return Err(fdmlab_pipeline::Error::bad_input(format!("spec `{}` not found (the default is relative to the repository root)", spec.display())).into());
     }
-    let scratch = tempdir()?;
+    let scratch = super::scratch_dir()?;
     // Run a copy of the spec so its lock file lands in the scratch folder.
     let copy = scratch.join(spec.file_name().unwrap_or_default());
     std::fs::copy(spec, &copy)?;
@@ -67,11 +67,4 @@ fn engine_bench(spec: &std::path::Path, repeat: u32, ctx: &Ctx) -> anyhow::Resul
         format!("{}: cold run {:.4} s, cached rerun {:.4} s ({} stages ran), {:.0}× faster\n", spec.display(), cold_s, warm_s, stages_run, cold_s / warm_s)
     });
     Ok(())
-}
-
-/// A fresh scratch folder under the system temp dir.
-pub fn tempdir() -> anyhow::Result<PathBuf> {
-    let dir = std::env::temp_dir().join(fdmlab_pipeline::store::unique_name("fdmlab-bench"));
-    std::fs::create_dir_all(&dir)?;
-    Ok(dir)
 }

@@ -88,9 +88,9 @@ pub struct StepsArgs {
     steps_per_mm_z: f64,
     #[arg(long, default_value_t = 93.0)]
     steps_per_mm_e: f64,
-    /// Bed size X Y (mm); moves outside are refused.
-    #[arg(long, num_args = 2, value_names = ["X", "Y"], default_values_t = [220.0, 220.0])]
-    bed_mm: Vec<f64>,
+    /// Bed size XxY, mm; moves outside are refused.
+    #[arg(long = "bed-mm", value_name = "XxY", default_value = "220x220", value_parser = super::values::parse_bed_mm)]
+    bed_mm: [f64; 2],
 }
 
 /// `fdmlab taguchi …`
@@ -246,12 +246,7 @@ fn simulate(a: SimulateArgs, ctx: &Ctx) -> anyhow::Result<()> {
 fn steps_cmd(a: StepsArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let text = super::read_input_text(&a.file)?;
     let file = a.file.display().to_string();
-    let cfg = steps::StepConfig {
-        steps_per_mm_xy: a.steps_per_mm_xy,
-        steps_per_mm_z: a.steps_per_mm_z,
-        steps_per_mm_e: a.steps_per_mm_e,
-        bed_mm: [a.bed_mm[0], a.bed_mm[1]],
-    };
+    let cfg = steps::StepConfig { steps_per_mm_xy: a.steps_per_mm_xy, steps_per_mm_z: a.steps_per_mm_z, steps_per_mm_e: a.steps_per_mm_e, bed_mm: a.bed_mm };
     let stream = gcode_steps::steps_from_gcode(&text, &file, cfg)?;
     let body = if a.ticks { steps::ticks_csv(&stream.blocks, a.max_ticks)? } else { steps::to_csv(&stream.blocks) };
     let mut totals = [0i64; 6];
@@ -364,17 +359,17 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     }
     let sim_s = median(&mut times);
     let cfg = StudyConfig::default();
-    let data = study::measure_protocol(&cfg, 7)?;
+    let data = study::measure_protocol(&cfg.truth, &cfg.sensor, 7)?;
     let mut id_times = Vec::new();
     for _ in 0..5 {
         let t = Instant::now();
-        let sc = study::run_screening(&cfg, &data)?;
+        let sc = study::run_screening(&cfg.initial, cfg.screening_threshold, &data)?;
         let tg = ident::taguchi(&cfg.initial, &cfg.bridge_factors, &data.y, &OrthogonalArray::l27())?;
         id_times.push(t.elapsed().as_secs_f64());
         std::hint::black_box((sc, tg));
     }
     let id_s = median(&mut id_times);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = fdmlab_models::parallel::threads();
     let value = serde_json::json!({
         "simulate_1s_seconds": sim_s,
         "simulate_1s_target_seconds": 2e-3,

@@ -6,6 +6,7 @@ pub mod pa;
 pub mod run;
 pub mod runs;
 pub mod thermal;
+pub mod values;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -45,7 +46,29 @@ impl Ctx {
     }
 }
 
-/// Exit code of an error: 2 when the input is at fault, else 1.
+/// Worker threads from `FDMLAB_THREADS` (a whole number ≥ 1; unset: every
+/// core). Artifacts do not depend on it; it bounds CPU use on shared machines.
+pub fn configure_threads() -> anyhow::Result<()> {
+    let Some(v) = std::env::var_os("FDMLAB_THREADS") else {
+        return Ok(());
+    };
+    let n = v.to_str().and_then(|s| s.trim().parse::<usize>().ok()).filter(|n| (1..=1024).contains(n));
+    match n {
+        Some(n) => {
+            fdmlab_models::parallel::set_threads(n);
+            Ok(())
+        }
+        None => Err(fdmlab_pipeline::Error::Input {
+            file: "environment".into(),
+            line: 0,
+            column: 0,
+            key: "FDMLAB_THREADS".into(),
+            message: format!("{:?} is not a whole number of threads within 1..1024", v),
+        }
+        .into()),
+    }
+}
+
 /// Read an input file the user named: a missing or unreadable file is bad
 /// input (exit 2), and bytes that are not UTF-8 are located by line.
 pub fn read_input(path: &std::path::Path) -> anyhow::Result<Vec<u8>> {
@@ -62,6 +85,7 @@ pub fn read_input_text(path: &std::path::Path) -> anyhow::Result<String> {
     })
 }
 
+/// Exit code of an error: 2 when the input is at fault, else 1.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     for cause in e.chain() {
         if let Some(p) = cause.downcast_ref::<fdmlab_pipeline::Error>() {
@@ -75,4 +99,11 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         }
     }
     1
+}
+
+/// A fresh scratch folder under the system temp dir (benchmarks).
+pub fn scratch_dir() -> anyhow::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(fdmlab_pipeline::store::unique_name("fdmlab-bench"));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
 }

@@ -1,6 +1,7 @@
 //! Pressure advance: `fdmlab gcode pa`, `fdmlab ka grid|scores|train|predict`,
 //! `fdmlab export ka`, `fdmlab bench pa`.
 
+use super::values::{parse_bed_mm, value_name, FirmwareArg, KaFormatArg, PatternArg};
 use super::Ctx;
 use anyhow::Context as _;
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
@@ -10,6 +11,7 @@ use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{GridConfig, LinePattern};
 use fdmlab_models::nets::TrainConfig;
 use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_pipeline::requests::CalibrationRequest;
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
 use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
@@ -25,95 +27,95 @@ pub enum GcodeCommand {
     Pa(GcodePaArgs),
 }
 
-/// Arguments of `fdmlab gcode pa`.
+/// Arguments of `fdmlab gcode pa`. Unset values take the defaults of
+/// [`CalibrationRequest`] (one table, shared with the `pressure-advance` kind).
 #[derive(clap::Args, Debug)]
 pub struct GcodePaArgs {
-    #[arg(long, default_value = "marlin")]
-    pub firmware: String,
-    #[arg(long, default_value = "lines")]
-    pub pattern: String,
-    #[arg(long, default_value_t = 0.0)]
-    pub k_start: f64,
-    #[arg(long, default_value_t = 1.0)]
-    pub k_end: f64,
-    #[arg(long, default_value_t = 0.05)]
-    pub k_step: f64,
-    /// Bed size X,Y in mm.
-    #[arg(long, default_value = "220,220")]
-    pub bed: String,
-    #[arg(long, default_value_t = 250.0)]
-    pub max_z: f64,
-    #[arg(long, default_value_t = 0.4)]
-    pub nozzle: f64,
-    #[arg(long, default_value_t = 1.75)]
-    pub filament: f64,
-    #[arg(long, default_value_t = 0.2)]
-    pub layer: f64,
+    #[arg(long, value_enum)]
+    pub firmware: Option<FirmwareArg>,
+    #[arg(long, value_enum)]
+    pub pattern: Option<PatternArg>,
+    #[arg(long)]
+    pub k_start: Option<f64>,
+    #[arg(long)]
+    pub k_end: Option<f64>,
+    #[arg(long)]
+    pub k_step: Option<f64>,
+    /// Bed size XxY, mm (default 220x220).
+    #[arg(long = "bed-mm", value_name = "XxY", value_parser = parse_bed_mm)]
+    pub bed_mm: Option<[f64; 2]>,
+    #[arg(long)]
+    pub max_z: Option<f64>,
+    #[arg(long)]
+    pub nozzle: Option<f64>,
+    #[arg(long)]
+    pub filament: Option<f64>,
+    #[arg(long)]
+    pub layer: Option<f64>,
     /// Line width (default 1.2 × nozzle).
     #[arg(long)]
     pub width: Option<f64>,
-    #[arg(long, default_value = "PLA")]
-    pub material: String,
-    #[arg(long, default_value_t = 215.0)]
-    pub hotend: f64,
-    #[arg(long, default_value_t = 60.0)]
-    pub bed_temp: f64,
+    #[arg(long)]
+    pub material: Option<String>,
+    #[arg(long)]
+    pub hotend: Option<f64>,
+    #[arg(long)]
+    pub bed_temp: Option<f64>,
     /// Printer hardware limits, °C.
-    #[arg(long, default_value_t = 260.0)]
-    pub max_hotend: f64,
-    #[arg(long, default_value_t = 110.0)]
-    pub max_bed: f64,
-    #[arg(long, default_value_t = 20.0)]
-    pub slow_speed: f64,
-    #[arg(long, default_value_t = 80.0)]
-    pub fast_speed: f64,
-    #[arg(long, default_value_t = 1000.0)]
-    pub accel: f64,
+    #[arg(long)]
+    pub max_hotend: Option<f64>,
+    #[arg(long)]
+    pub max_bed: Option<f64>,
+    #[arg(long)]
+    pub slow_speed: Option<f64>,
+    #[arg(long)]
+    pub fast_speed: Option<f64>,
+    #[arg(long)]
+    pub accel: Option<f64>,
     /// Slow segment length (default 30 mm for lines, 10 mm for the tower).
     #[arg(long)]
     pub slow_len: Option<f64>,
     /// Fast segment length (default 40 mm for lines, 30 mm for the tower).
     #[arg(long)]
     pub fast_len: Option<f64>,
-    #[arg(long, default_value_t = 5.0)]
-    pub spacing: f64,
-    /// Tower band height, mm.
-    #[arg(long, default_value_t = 2.0)]
-    pub band: f64,
-    #[arg(long, default_value = "fdmlab pressure-advance calibration")]
-    pub title: String,
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// Tower band height, mm (default 2).
+    #[arg(long)]
+    pub band: Option<f64>,
+    #[arg(long)]
+    pub title: Option<String>,
     #[arg(short, long)]
     pub output: PathBuf,
 }
 
 impl GcodePaArgs {
-    /// The printer and calibration these arguments describe.
-    pub fn to_request(&self) -> Result<(Printer, Calibration), Error> {
-        let firmware = Firmware::parse(&self.firmware)?;
-        let pattern = Pattern::parse(&self.pattern)?;
-        let bed = parse_pair(&self.bed).ok_or_else(|| Error::bad_input(format!("--bed `{}` is not X,Y in mm", self.bed)))?;
-        let tower = pattern == Pattern::Tower;
-        let line = LinePattern {
-            slow_mm_s: self.slow_speed,
-            fast_mm_s: self.fast_speed,
-            accel_mm_s2: self.accel,
-            slow_len_mm: self.slow_len.unwrap_or(if tower { 10.0 } else { 30.0 }),
-            fast_len_mm: self.fast_len.unwrap_or(if tower { 30.0 } else { 40.0 }),
-        };
-        let printer = Printer {
-            firmware,
-            bed_mm: bed,
+    /// The request these arguments describe (defaults filled by its `check`).
+    pub fn to_request(&self) -> CalibrationRequest {
+        let k = [self.k_start, self.k_end, self.k_step];
+        let line_given = [self.slow_speed, self.fast_speed, self.accel, self.slow_len, self.fast_len].iter().any(Option::is_some);
+        let pattern = self.pattern.map(Pattern::from);
+        let line = line_given.then(|| {
+            let d = CalibrationRequest::default_line(pattern.unwrap_or(Pattern::Lines));
+            LinePattern {
+                slow_mm_s: self.slow_speed.unwrap_or(d.slow_mm_s),
+                fast_mm_s: self.fast_speed.unwrap_or(d.fast_mm_s),
+                accel_mm_s2: self.accel.unwrap_or(d.accel_mm_s2),
+                slow_len_mm: self.slow_len.unwrap_or(d.slow_len_mm),
+                fast_len_mm: self.fast_len.unwrap_or(d.fast_len_mm),
+            }
+        });
+        let d = Calibration::default();
+        CalibrationRequest {
+            firmware: self.firmware.map(Firmware::from),
+            pattern,
+            bed_mm: self.bed_mm,
             max_z_mm: self.max_z,
             nozzle_mm: self.nozzle,
             filament_mm: self.filament,
             max_hotend_c: self.max_hotend,
             max_bed_c: self.max_bed,
-        };
-        let cal = Calibration {
-            pattern,
-            k_start: self.k_start,
-            k_end: self.k_end,
-            k_step: self.k_step,
+            k: k.iter().any(Option::is_some).then(|| [self.k_start.unwrap_or(d.k_start), self.k_end.unwrap_or(d.k_end), self.k_step.unwrap_or(d.k_step)]),
             material: self.material.clone(),
             hotend_c: self.hotend,
             bed_c: self.bed_temp,
@@ -121,18 +123,10 @@ impl GcodePaArgs {
             line_width_mm: self.width,
             line,
             spacing_mm: self.spacing,
-            travel_mm_s: 120.0,
-            retract_mm: 0.8,
             band_mm: self.band,
             title: self.title.clone(),
-        };
-        Ok((printer, cal))
+        }
     }
-}
-
-fn parse_pair(s: &str) -> Option<[f64; 2]> {
-    let (a, b) = s.split_once(',')?;
-    Some([a.trim().parse().ok()?, b.trim().parse().ok()?])
 }
 
 fn manifest_path(gcode: &Path) -> PathBuf {
@@ -145,8 +139,7 @@ fn manifest_path(gcode: &Path) -> PathBuf {
 pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         GcodeCommand::Pa(a) => {
-            let (printer, cal) = a.to_request()?;
-            let g = calibration::write(&printer, &cal)?;
+            let g = a.to_request().check()?.write()?;
             let manifest = serde_json::to_vec_pretty(&g.manifest)?;
             let mpath = manifest_path(&a.output);
             write_files_atomic(&[(&a.output, g.text.as_bytes()), (&mpath, &manifest)])?;
@@ -368,8 +361,8 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let model_json = model.to_json()?;
             let store = ctx.store()?;
             let data_hash = store.put(&bytes)?;
-            let params =
-                serde_json::json!({"data": a.data.display().to_string(), "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
+            let data_name = fdmlab_pipeline::engine::portable_path(&a.data);
+            let params = serde_json::json!({"data": data_name, "target": a.target, "features": a.features, "folds": a.folds, "settings": settings});
             let mut metrics = BTreeMap::new();
             for m in &cv.models {
                 metrics.insert(format!("{}_mae", m.name), m.mae);
@@ -380,7 +373,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
                 &store,
                 "ka train",
                 params,
-                vec![InputRef { name: format!("file:{}", a.data.display()), hash: data_hash }],
+                vec![InputRef { name: format!("file:{data_name}"), hash: data_hash }],
                 vec![
                     Artifact { name: "model.json".into(), media_type: "application/json".into(), bytes: model_json.clone() },
                     Artifact { name: "model.bpk".into(), media_type: "application/octet-stream".into(), bytes: model.model.to_burnpack()? },
@@ -423,9 +416,8 @@ pub enum ExportCommand {
 pub struct ExportKaArgs {
     #[arg(long)]
     pub model: String,
-    /// marlin | klipper | reprap | orca | c-header | json
-    #[arg(long)]
-    pub format: String,
+    #[arg(long, value_enum)]
+    pub format: KaFormatArg,
     /// Values of the inputs the table does not sweep, `column=value,…`.
     #[arg(long, default_value = "")]
     pub set: String,
@@ -448,7 +440,7 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
     let ExportCommand::Ka(a) = cmd;
     let store = ctx.store()?;
     let (m, hash) = load_model(&store, &a.model)?;
-    let format = ExportFormat::parse(&a.format)?;
+    let format = ExportFormat::from(a.format);
     let opts = ExportOptions {
         material_column: a.material_column.clone(),
         temp_column: a.temp_column.clone(),
@@ -462,7 +454,7 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match &a.output {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
-            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len()}), || {
+            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": value_name(&a.format), "model": hash.0, "bytes": text.len()}), || {
                 format!("wrote {}\n", p.display())
             });
         }
@@ -536,7 +528,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
         support: vec![],
     };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
-    let dir = super::bench::tempdir()?;
+    let dir = super::scratch_dir()?;
     std::fs::write(dir.join("ka.h"), header)?;
     let n = tb.design.cols();
     let row: Vec<String> = tb.design.row(0).iter().map(|v| format!("{v:e}")).collect();
@@ -562,7 +554,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
 
 /// Run the PyTorch script on the same grid and read its training time.
 fn torch_time(script: &Path, csv: &str, epochs: usize) -> anyhow::Result<f64> {
-    let dir = super::bench::tempdir()?;
+    let dir = super::scratch_dir()?;
     let path = dir.join("grid.csv");
     std::fs::write(&path, csv)?;
     let python = std::env::var("FDMLAB_PYTHON").unwrap_or_else(|_| "python3".into());

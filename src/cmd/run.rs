@@ -43,7 +43,7 @@ pub fn run(args: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
                 ran,
                 rec.stages.len() - ran,
                 rec.wall_s,
-                rec.reports_dir.as_ref().map(|d| format!("\n  report: {d}/report.html")).unwrap_or_default()
+                rec.reports_dir.as_ref().map(|d| format!("\n  report: {}", ctx.store_dir.join(d).join("report.html").display())).unwrap_or_default()
             );
         }
         records.push(rec);

@@ -86,7 +86,7 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
                     }
                 }
                 if let Some(d) = &r.reports_dir {
-                    s += &format!("\nreport: {d}\n");
+                    s += &format!("\nreport: {}\n", ctx.store_dir.join(d).display());
                 }
                 s
             });

@@ -1,6 +1,7 @@
 //! `fdmlab thermal …` (identify, place, simulate, grid, gcode), `fdmlab export
 //! thermal` and `fdmlab bench thermal`.
 
+use super::values::{parse_bed_mm, value_name, LogFormatArg, MethodArg, ThermalFormatArg};
 use super::Ctx;
 use anyhow::Context;
 use fdmlab_datasets::thermal::{self as tlog, export, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
@@ -38,9 +39,9 @@ pub enum ThermalCommand {
 /// How to read logs.
 #[derive(clap::Args, Clone)]
 pub struct LogArgs {
-    /// Log format: csv, marlin or klipper (default: by extension/content).
-    #[arg(long)]
-    format: Option<String>,
+    /// Log format (default: by extension/content).
+    #[arg(long, value_enum)]
+    format: Option<LogFormatArg>,
     /// Resample irregular logs to this period, s (never done silently).
     #[arg(long, value_name = "DT_S")]
     resample: Option<f64>,
@@ -61,7 +62,7 @@ pub struct LogArgs {
 impl LogArgs {
     fn options(&self) -> anyhow::Result<ReadOptions> {
         Ok(ReadOptions {
-            format: self.format.as_deref().map(LogFormat::parse).transpose()?,
+            format: self.format.map(LogFormat::from),
             marlin: MarlinOptions { interval_s: self.interval, pwm_max: self.pwm_max },
             klipper_heater: self.heater.clone(),
             uniformity: Uniformity { resample_s: self.resample, ambient_c: self.ambient_c },
@@ -117,9 +118,9 @@ pub struct PlaceArgs {
     /// (ZOH) and the poles mapped by z = e^{sT}.
     #[arg(long, value_name = "DT_S")]
     discrete: Option<f64>,
-    /// Force a method: ackermann or hessenberg (default: Ackermann below order 4).
-    #[arg(long)]
-    method: Option<String>,
+    /// Force a method (default: Ackermann below order 4).
+    #[arg(long, value_enum)]
+    method: Option<MethodArg>,
 }
 
 /// `fdmlab thermal simulate`
@@ -158,9 +159,9 @@ pub struct GridArgs {
 /// `fdmlab thermal gcode`
 #[derive(clap::Args)]
 pub struct GcodeArgs {
-    /// Bed size `XxY`, mm.
-    #[arg(long, default_value = "200x200")]
-    bed: String,
+    /// Bed size XxY, mm.
+    #[arg(long = "bed-mm", value_name = "XxY", default_value = "200x200", value_parser = parse_bed_mm)]
+    bed_mm: [f64; 2],
     /// Machine Z limit, mm.
     #[arg(long = "max-z", default_value_t = 180.0)]
     max_z: f64,
@@ -189,9 +190,8 @@ pub struct GcodeArgs {
 pub struct ExportArgs {
     #[command(flatten)]
     model: ModelArg,
-    /// marlin-mpc, marlin-pid, klipper-pid, klipper-mpc, reprap, c-header.
-    #[arg(long)]
-    format: String,
+    #[arg(long, value_enum)]
+    format: ThermalFormatArg,
     /// Heater power, W (MPC formats: a log only identifies power/capacity).
     #[arg(long = "heater-power-w")]
     heater_power_w: Option<f64>,
@@ -250,7 +250,7 @@ fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Exper
         for n in notes {
             eprintln!("{name}: {n}");
         }
-        files.push((name, text));
+        files.push((fdmlab_pipeline::engine::portable_path(p), text));
         exps.push(e);
     }
     Ok((exps, files))
@@ -327,7 +327,8 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         artifacts.push(Artifact { name: "cross-validation.json".into(), media_type: "application/json".into(), bytes: serde_json::to_vec_pretty(&cv)? });
         out["cross_validation"] = serde_json::to_value(&cv)?;
     }
-    let params = json!({"logs": a.logs, "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": a.verify});
+    let names = |files: &[(String, String)]| files.iter().map(|(name, _)| name.clone()).collect::<Vec<_>>();
+    let params = json!({"logs": names(&log_files), "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": names(&verif_files)});
     let record = fdmlab_pipeline::runs::record_command(&store, "thermal identify", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
     ctx.emit(&out, || {
@@ -401,14 +402,8 @@ fn parse_pole(s: &str) -> anyhow::Result<Complex<f64>> {
     }
 }
 
-fn design(ss: &StateSpace, poles: &[String], discrete: Option<f64>, method: Option<&str>) -> anyhow::Result<(StateSpace, control::Placement)> {
+fn design(ss: &StateSpace, poles: &[String], discrete: Option<f64>, method: Option<PlacementMethod>) -> anyhow::Result<(StateSpace, control::Placement)> {
     let poles: Vec<Complex<f64>> = poles.iter().map(|p| parse_pole(p)).collect::<anyhow::Result<_>>()?;
-    let method = match method {
-        None => None,
-        Some("ackermann") => Some(PlacementMethod::Ackermann),
-        Some("hessenberg") => Some(PlacementMethod::Hessenberg),
-        Some(m) => return Err(bad(format!("--method `{m}`: expected ackermann or hessenberg"))),
-    };
     let ss = heater_only(ss)?;
     // The poles as given: z-plane for a discrete model, else s-plane.
     let z_plane = ss.dt_s.is_some();
@@ -427,7 +422,7 @@ fn design(ss: &StateSpace, poles: &[String], discrete: Option<f64>, method: Opti
 
 fn place(a: PlaceArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let (ss, _, _) = load_model(&a.model.model, ctx)?;
-    let (_, p) = design(&ss, &a.poles, a.discrete, a.method.as_deref())?;
+    let (_, p) = design(&ss, &a.poles, a.discrete, a.method.map(PlacementMethod::from))?;
     let value = serde_json::to_value(&p)?;
     ctx.emit(&value, || {
         format!(
@@ -475,8 +470,7 @@ fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn gcode(a: GcodeArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let (x, y) = a.bed.split_once('x').ok_or_else(|| bad(format!("--bed `{}`: expected XxY in mm", a.bed)))?;
-    let bed = [x.parse::<f64>().map_err(|_| bad("--bed: X is not a number"))?, y.parse::<f64>().map_err(|_| bad("--bed: Y is not a number"))?];
+    let bed = a.bed_mm;
     let g = step_gcode::StepTestGcode {
         bed_mm: bed,
         max_z_mm: a.max_z,
@@ -502,7 +496,8 @@ fn gcode(a: GcodeArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 /// `fdmlab export thermal …`
 pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let format = export::Format::parse(&a.format)?;
+    let format = export::Format::from(a.format);
+    let format_name = value_name(&a.format);
     let (ss, model, name) = load_model(&a.model.model, ctx)?;
     let note = format!("fdmlab {} from model {}", env!("CARGO_PKG_VERSION"), name);
     let discrete = |ss: &StateSpace| -> anyhow::Result<StateSpace> {
@@ -512,7 +507,7 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
         })
     };
     let physics = || -> anyhow::Result<fdmlab_models::thermal::physics::Rates> {
-        model.as_ref().and_then(|m| m.physics).ok_or_else(|| bad(format!("format {} needs a grey-box model (identify with the greybox family)", a.format)))
+        model.as_ref().and_then(|m| m.physics).ok_or_else(|| bad(format!("format {format_name} needs a grey-box model (identify with the greybox family)")))
     };
     let power = || a.heater_power_w.ok_or_else(|| bad("--heater-power-w is required for MPC formats (a temperature log only identifies power/capacity)"));
     let text = match format {
@@ -544,11 +539,11 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
     match &a.out {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
-            ctx.emit(&json!({"file": p, "format": a.format}), || format!("wrote {}", p.display()));
+            ctx.emit(&json!({"file": p, "format": format_name}), || format!("wrote {}", p.display()));
         }
         None => {
             if ctx.json {
-                println!("{}", json!({"format": a.format, "text": text}));
+                println!("{}", json!({"format": format_name, "text": text}));
             } else {
                 print!("{text}");
             }
@@ -581,7 +576,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let mut value = json!({"samples": log.len(), "models": all_r.models.len(), "failures": all_r.failures.len(), "all_families_s": all_s, "n4sid_orders_1_8_s": n4_s, "n4sid_fit_percent": ours});
     let python = a.sippy_python.clone().or_else(|| std::env::var_os("FDMLAB_SIPPY_PYTHON").map(PathBuf::from));
     if let Some(py) = python {
-        let dir = super::bench::tempdir()?;
+        let dir = super::scratch_dir()?;
         let csv = dir.join("bench-log.csv");
         std::fs::write(&csv, tlog::csv::write(&log))?;
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/thermal_sippy.py");

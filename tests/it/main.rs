@@ -1,5 +1,7 @@
 //! The one integration-test binary: drives the `fdmlab` binary end to end.
 
+mod cache;
+mod cli;
 mod common;
 mod foundation;
 mod hbot;

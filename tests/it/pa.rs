@@ -13,7 +13,8 @@ fn gcode_pa_writes_gcode_and_manifest_and_refuses_bad_input() {
     assert!(sb.path().join("pa.gcode.json").is_file());
     // Refusals: exit 2, a message, and no file.
     for (args, why) in [
-        (vec!["--bed", "100,100"], "bed"),
+        (vec!["--bed-mm", "100x100"], "bed"),
+        (vec!["--bed-mm", "100,100"], "XxY"),
         (vec!["--hotend", "300"], "hotend"),
         (vec!["--firmware", "marlin", "--k-end", "12", "--k-step", "1"], "range"),
         (vec!["--title", "x\nG1 Z-10"], "inject"),

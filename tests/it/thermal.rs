@@ -123,7 +123,7 @@ fn exports_and_gcode() {
     assert!(g.contains("M155 S1") && g.matches("M109 S150").count() == 4);
     let out = sb.run(&["thermal", "gcode", "--max-z", "50"]);
     assert_eq!(out.status.code(), Some(2), "head height MAX = 70 mm exceeds Z 50: refused");
-    for (flag, why) in [("--bed=infxinf", "bed"), ("--start-c=-300", "start temperature"), ("--start-c=inf", "start temperature")] {
+    for (flag, why) in [("--bed-mm=infxinf", "bed"), ("--start-c=-300", "start temperature"), ("--start-c=inf", "start temperature")] {
         let out = sb.run(&["thermal", "gcode", "--max-z", "100", flag, "--out", "step.gcode"]);
         assert_eq!(out.status.code(), Some(2), "{flag}: {}", crate::common::stderr(&out));
         assert!(crate::common::stderr(&out).contains(why), "{flag}: {}", crate::common::stderr(&out));

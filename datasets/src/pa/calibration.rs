@@ -186,7 +186,8 @@ impl Default for Calibration {
             spacing_mm: 5.0,
             travel_mm_s: 120.0,
             retract_mm: 0.8,
-            band_mm: 4.0,
+            // Ten 0.2 mm layers per band (see fdmlab-pipeline `requests::CalibrationRequest`).
+            band_mm: 2.0,
             title: "fdmlab pressure-advance calibration".into(),
         }
     }

@@ -105,9 +105,9 @@ pub fn objective_mm(params: &HbotParams, data: &[Measurement]) -> Result<f64, Mo
     Ok(r.iter().map(|v| v.abs()).sum::<f64>() / r.len() as f64)
 }
 
-/// Map `f` over `items` on all available cores, results in input order.
+/// Map `f` over `items` on [`crate::parallel::threads`] threads, results in input order.
 pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(items.len().max(1));
+    let threads = crate::parallel::threads().min(items.len().max(1));
     if threads <= 1 {
         return items.iter().map(&f).collect();
     }

@@ -123,13 +123,14 @@ pub struct StudyData {
 }
 
 /// Measure the hidden truth (streams: y moves 0.., x moves 100.., verification 200..).
-pub fn measure_protocol(cfg: &StudyConfig, seed: u64) -> Result<StudyData, ModelError> {
-    cfg.check()?;
+pub fn measure_protocol(truth: &HbotParams, sensor: &LaserSensor, seed: u64) -> Result<StudyData, ModelError> {
+    truth.check()?;
+    sensor.check()?;
     let s = seed.wrapping_mul(1000);
     Ok(StudyData {
-        y: measure(&cfg.truth, &source_moves(Axis::Y), &cfg.sensor, s)?,
-        x: measure(&cfg.truth, &source_moves(Axis::X), &cfg.sensor, s + 100)?,
-        verify: measure(&cfg.truth, &[ProtocolMove::source(Axis::Y, 0.8)], &cfg.sensor, s + 200)?,
+        y: measure(truth, &source_moves(Axis::Y), sensor, s)?,
+        x: measure(truth, &source_moves(Axis::X), sensor, s + 100)?,
+        verify: measure(truth, &[ProtocolMove::source(Axis::Y, 0.8)], sensor, s + 200)?,
     })
 }
 
@@ -141,10 +142,10 @@ pub struct Screening {
 }
 
 /// One-at-a-time screening at 0.5×/2× of the initial estimates.
-pub fn run_screening(cfg: &StudyConfig, data: &StudyData) -> Result<Screening, ModelError> {
+pub fn run_screening(initial: &HbotParams, threshold: f64, data: &StudyData) -> Result<Screening, ModelError> {
     let bridge: Vec<Param> = Param::ALL.into_iter().filter(|p| p.moves_bridge()).collect();
     let cart = [Param::MCart, Param::BCart, Param::FcCart];
-    Ok(Screening { y: screen(&cfg.initial, &bridge, &data.y, cfg.screening_threshold)?, x: screen(&cfg.initial, &cart, &data.x, cfg.screening_threshold)? })
+    Ok(Screening { y: screen(initial, &bridge, &data.y, threshold)?, x: screen(initial, &cart, &data.x, threshold)? })
 }
 
 /// Taguchi identification: bridge L27 (+ second round), then cart L9 on x moves.
@@ -157,16 +158,50 @@ pub struct TaguchiStudy {
     pub params: HbotParams,
 }
 
+/// The Taguchi rounds' plan (a slice of [`StudyConfig`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TaguchiPlan {
+    pub bridge_factors: Vec<Factor>,
+    pub second_round: bool,
+    /// Level-spacing factor of the second round.
+    pub shrink: f64,
+    pub cart_factors: Vec<Factor>,
+}
+
+/// The compensation trial (a slice of [`StudyConfig`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CompensationPlan {
+    pub speed_m_s: f64,
+    pub stops_s: Vec<f64>,
+    pub iterations: usize,
+}
+
+impl StudyConfig {
+    /// The Taguchi rounds' slice.
+    pub fn taguchi_plan(&self) -> TaguchiPlan {
+        TaguchiPlan {
+            bridge_factors: self.bridge_factors.clone(),
+            second_round: self.second_round,
+            shrink: self.shrink,
+            cart_factors: self.cart_factors.clone(),
+        }
+    }
+    /// The compensation trial's slice.
+    pub fn compensation_plan(&self) -> CompensationPlan {
+        CompensationPlan { speed_m_s: self.compensation_speed_m_s, stops_s: self.compensation_stops_s.clone(), iterations: self.compensation_iterations }
+    }
+}
+
 /// Run the Taguchi rounds from the initial estimates.
-pub fn run_taguchi(cfg: &StudyConfig, data: &StudyData) -> Result<TaguchiStudy, ModelError> {
-    let bridge = taguchi(&cfg.initial, &cfg.bridge_factors, &data.y, &OrthogonalArray::l27())?;
+pub fn run_taguchi(initial: &HbotParams, plan: &TaguchiPlan, data: &StudyData) -> Result<TaguchiStudy, ModelError> {
+    let bridge = taguchi(initial, &plan.bridge_factors, &data.y, &OrthogonalArray::l27())?;
     let bridge_second =
-        if cfg.second_round { Some(taguchi(&bridge.optimum, &refine_factors(&bridge, cfg.shrink), &data.y, &OrthogonalArray::l27())?) } else { None };
+        if plan.second_round { Some(taguchi(&bridge.optimum, &refine_factors(&bridge, plan.shrink), &data.y, &OrthogonalArray::l27())?) } else { None };
     let mut params = match &bridge_second {
         Some(b2) if b2.confirmation_s_mm < bridge.confirmation_s_mm => b2.optimum,
         _ => bridge.optimum,
     };
-    let cart = if cfg.cart_factors.is_empty() { None } else { Some(taguchi(&params, &cfg.cart_factors, &data.x, &OrthogonalArray::l9())?) };
+    let cart = if plan.cart_factors.is_empty() { None } else { Some(taguchi(&params, &plan.cart_factors, &data.x, &OrthogonalArray::l9())?) };
     if let Some(c) = &cart {
         params = c.factors.iter().fold(params, |p, f| p.with(f.param, c.optimum.get(f.param)));
     }
@@ -181,12 +216,11 @@ pub struct DirectStudy {
     pub params: HbotParams,
 }
 
-/// Levenberg–Marquardt on the same objective data, started from the Taguchi set.
-pub fn run_direct(cfg: &StudyConfig, data: &StudyData, start: &HbotParams) -> Result<DirectStudy, ModelError> {
-    let free: Vec<Param> = cfg.bridge_factors.iter().map(|f| f.param).collect();
-    let bridge = direct_fit(start, &free, &data.y)?;
-    let cart_free: Vec<Param> = cfg.cart_factors.iter().map(|f| f.param).collect();
-    let cart = if cart_free.is_empty() { None } else { Some(direct_fit(&bridge.params, &cart_free, &data.x)?) };
+/// Levenberg–Marquardt on the same objective data, started from the Taguchi set;
+/// `free` are the bridge factors' parameters, `cart_free` the cart's.
+pub fn run_direct(free: &[Param], cart_free: &[Param], data: &StudyData, start: &HbotParams) -> Result<DirectStudy, ModelError> {
+    let bridge = direct_fit(start, free, &data.y)?;
+    let cart = if cart_free.is_empty() { None } else { Some(direct_fit(&bridge.params, cart_free, &data.x)?) };
     let params = cart.as_ref().map_or(bridge.params, |c| c.params);
     Ok(DirectStudy { bridge, cart, params })
 }
@@ -201,18 +235,24 @@ pub struct Verification {
 }
 
 /// Verify the identified sets on the held-out 0.8 s move.
-pub fn verify(cfg: &StudyConfig, data: &StudyData, taguchi: &HbotParams, direct: &HbotParams) -> Result<Verification, ModelError> {
+pub fn verify(initial: &HbotParams, truth: &HbotParams, data: &StudyData, taguchi: &HbotParams, direct: &HbotParams) -> Result<Verification, ModelError> {
     Ok(Verification {
-        initial_s_mm: objective_mm(&cfg.initial, &data.verify)?,
+        initial_s_mm: objective_mm(initial, &data.verify)?,
         taguchi_s_mm: objective_mm(taguchi, &data.verify)?,
         direct_s_mm: objective_mm(direct, &data.verify)?,
-        truth_s_mm: objective_mm(&cfg.truth, &data.verify)?,
+        truth_s_mm: objective_mm(truth, &data.verify)?,
     })
 }
 
 /// Compensation evaluated with one identified model on the true machine.
-pub fn run_compensation(cfg: &StudyConfig, model: &HbotParams, seed: u64) -> Result<CompensationReport, ModelError> {
-    evaluate(&cfg.truth, model, Axis::Y, cfg.compensation_speed_m_s, &cfg.compensation_stops_s, cfg.compensation_iterations, &cfg.sensor, seed)
+pub fn run_compensation(
+    truth: &HbotParams,
+    sensor: &LaserSensor,
+    plan: &CompensationPlan,
+    model: &HbotParams,
+    seed: u64,
+) -> Result<CompensationReport, ModelError> {
+    evaluate(truth, model, Axis::Y, plan.speed_m_s, &plan.stops_s, plan.iterations, sensor, seed)
 }
 
 #[cfg(test)]
@@ -222,19 +262,21 @@ mod tests {
     #[test]
     fn default_study_meets_the_issue_bars() {
         let cfg = StudyConfig::default();
-        let data = measure_protocol(&cfg, 7).expect("data");
-        let sc = run_screening(&cfg, &data).expect("screen");
+        let data = measure_protocol(&cfg.truth, &cfg.sensor, 7).expect("data");
+        let sc = run_screening(&cfg.initial, cfg.screening_threshold, &data).expect("screen");
         // The source found the belt stiffnesses insignificant.
         for p in [Param::KL, Param::KR, Param::KU] {
             assert!(!sc.y.iter().any(|r| r.param == p && r.significant), "{p:?} significant");
         }
-        let t = run_taguchi(&cfg, &data).expect("taguchi");
-        let d = run_direct(&cfg, &data, &t.params).expect("direct");
-        let v = verify(&cfg, &data, &t.params, &d.params).expect("verify");
+        let t = run_taguchi(&cfg.initial, &cfg.taguchi_plan(), &data).expect("taguchi");
+        let free: Vec<Param> = cfg.bridge_factors.iter().map(|f| f.param).collect();
+        let cart_free: Vec<Param> = cfg.cart_factors.iter().map(|f| f.param).collect();
+        let d = run_direct(&free, &cart_free, &data, &t.params).expect("direct");
+        let v = verify(&cfg.initial, &cfg.truth, &data, &t.params, &d.params).expect("verify");
         // Held-out move: both identified sets beat the initial estimates, the direct fit
         // sits at the sensor's noise floor (mean |noise| ≈ 1.6 µm; < 2.5 µm).
         assert!(v.taguchi_s_mm < v.initial_s_mm && v.direct_s_mm < 0.0025, "{v:?}");
-        let c = run_compensation(&cfg, &t.params, 7).expect("comp");
+        let c = run_compensation(&cfg.truth, &cfg.sensor, &cfg.compensation_plan(), &t.params, 7).expect("comp");
         // The issue's bar: compensation reduces the MAE at least 5×.
         assert!(c.mae_after_mm * 5.0 <= c.mae_before_mm, "{} → {}", c.mae_before_mm, c.mae_after_mm);
         assert!(StudyConfig { shrink: 0.0, ..cfg.clone() }.check().is_err());

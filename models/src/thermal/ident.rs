@@ -132,17 +132,22 @@ pub fn identify(exps: &[Experiment], opts: &IdentOptions) -> Result<IdentResult,
     let names: Vec<String> = exps.iter().map(|e| e.name.clone()).collect();
     let job = |family: Family| -> Vec<Result<ThermalModel, Failure>> { fit_family(family, exps, &data, dt, &names, opts) };
     let families = opts.families.clone();
-    // Two worker threads share the families, heaviest first.
-    let mut results: Vec<(Family, Vec<Result<ThermalModel, Failure>>)> = std::thread::scope(|scope| {
-        let (left, right): (Vec<_>, Vec<_>) = families.iter().enumerate().partition(|(i, _)| i % 2 == 0);
-        let h = scope.spawn(move || right.into_iter().map(|(_, f)| (*f, job(*f))).collect::<Vec<_>>());
-        let mut out: Vec<_> = left.into_iter().map(|(_, f)| (*f, job(*f))).collect();
-        match h.join() {
-            Ok(v) => out.extend(v),
-            Err(_) => out.push((families[0], vec![Err(Failure { family: families[0], order: 0, reason: "worker thread panicked".into() })])),
-        }
-        out
-    });
+    // Two worker threads share the families, heaviest first (one when
+    // `parallel::threads()` is 1); results are sorted by family either way.
+    let mut results: Vec<(Family, Vec<Result<ThermalModel, Failure>>)> = if crate::parallel::threads() <= 1 {
+        families.iter().map(|f| (*f, job(*f))).collect()
+    } else {
+        std::thread::scope(|scope| {
+            let (left, right): (Vec<_>, Vec<_>) = families.iter().enumerate().partition(|(i, _)| i % 2 == 0);
+            let h = scope.spawn(move || right.into_iter().map(|(_, f)| (*f, job(*f))).collect::<Vec<_>>());
+            let mut out: Vec<_> = left.into_iter().map(|(_, f)| (*f, job(*f))).collect();
+            match h.join() {
+                Ok(v) => out.extend(v),
+                Err(_) => out.push((families[0], vec![Err(Failure { family: families[0], order: 0, reason: "worker thread panicked".into() })])),
+            }
+            out
+        })
+    };
     results.sort_by_key(|(f, _)| *f);
     let mut out = IdentResult { rows: exps.iter().map(Experiment::len).sum(), ..Default::default() };
     for (_, list) in results {

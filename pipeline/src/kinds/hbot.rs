@@ -8,8 +8,9 @@ use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
 use fdmlab_models::hbot::compensate::CompensationReport;
 use fdmlab_models::hbot::ident::{Factor, TaguchiResult};
-use fdmlab_models::hbot::study::{self, DirectStudy, Screening, StudyConfig, StudyData, TaguchiStudy, Verification};
-use fdmlab_models::hbot::{Param, StepperDrive};
+use fdmlab_models::hbot::sensor::LaserSensor;
+use fdmlab_models::hbot::study::{self, CompensationPlan, DirectStudy, Screening, StudyConfig, StudyData, TaguchiPlan, TaguchiStudy, Verification};
+use fdmlab_models::hbot::{HbotParams, Param, StepperDrive};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -127,6 +128,18 @@ fn names() -> String {
     Param::ALL.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")
 }
 
+/// Where each of [`StudyConfig::check`]'s parameter names lives in the spec.
+/// Factor errors are named by the factor's parameter (`T0`, `m_cart`, …).
+const CHECK_KEYS: &[(&str, &str)] = &[
+    ("screening_threshold", "screening.threshold"),
+    ("shrink", "taguchi.shrink"),
+    ("bridge_factors", "taguchi.bridge"),
+    ("cart_factors", "taguchi.cart"),
+    ("compensation.speed", "compensation.speed_mm_s"),
+    ("compensation.stops_s", "compensation.stops_s"),
+    ("compensation.iterations", "compensation.iterations"),
+];
+
 impl HbotSpec {
     /// The validated study configuration; every error is located in the spec.
     fn config(&self, spec: &SpecFile) -> Result<StudyConfig> {
@@ -164,26 +177,73 @@ impl HbotSpec {
         cfg.compensation_speed_m_s = self.compensation.speed_mm_s * 1e-3;
         cfg.compensation_stops_s = self.compensation.stops_s.clone();
         cfg.compensation_iterations = self.compensation.iterations;
-        // Map the model's own checks to the spec section they come from.
+        // The machines first (a bad truth value or drive names its own key),
+        // then the study's own checks, mapped to spec keys by CHECK_KEYS.
+        let machine = |e: fdmlab_models::ModelError| match &e {
+            fdmlab_models::ModelError::InvalidParameter { name, .. } if name.starts_with("drive.") => spec.bad_value(name, e.to_string()),
+            fdmlab_models::ModelError::InvalidParameter { name, .. } => spec.bad_value(&format!("truth.{name}"), e.to_string()),
+            _ => spec.bad_value("truth", e.to_string()),
+        };
+        cfg.truth.check().map_err(machine)?;
+        cfg.initial.check().map_err(machine)?;
         cfg.check().map_err(|e| {
-            let msg = e.to_string();
-            let key = if msg.contains("compensation") {
-                "compensation"
-            } else if msg.contains("threshold") {
-                "screening.threshold"
-            } else if msg.contains("shrink") {
-                "taguchi.shrink"
-            } else if msg.contains("factor") || msg.contains("levels") || msg.contains("twice") {
-                "taguchi"
-            } else if msg.contains("drive") {
-                "drive"
-            } else {
-                "truth"
+            let key = match &e {
+                fdmlab_models::ModelError::InvalidParameter { name, .. } => {
+                    CHECK_KEYS.iter().find(|(n, _)| n == name).map(|(_, k)| *k).or_else(|| Param::from_name(name).map(|_| "taguchi")).unwrap_or("experiment")
+                }
+                _ => "experiment",
             };
-            spec.bad_value(key, msg)
+            spec.bad_value(key, e.to_string())
         })?;
         Ok(cfg)
     }
+}
+
+/// `measure`: the hidden machine and the laser that measures it.
+#[derive(Debug, Clone, Serialize)]
+struct MeasureParams {
+    truth: HbotParams,
+    sensor: LaserSensor,
+}
+
+/// `screen`: one-at-a-time screening around the initial estimates.
+#[derive(Debug, Clone, Serialize)]
+struct ScreenParams {
+    initial: HbotParams,
+    threshold: f64,
+}
+
+/// `taguchi`: the L27 (+ second round) and cart L9 plan.
+#[derive(Debug, Clone, Serialize)]
+struct TaguchiParams {
+    initial: HbotParams,
+    plan: TaguchiPlan,
+}
+
+/// `direct`: which parameters the optimiser frees, and the sets it verifies against.
+#[derive(Debug, Clone, Serialize)]
+struct DirectParams {
+    free: Vec<Param>,
+    cart_free: Vec<Param>,
+    initial: HbotParams,
+    truth: HbotParams,
+}
+
+/// `compensate`: the trial on the true machine.
+#[derive(Debug, Clone, Serialize)]
+struct CompensateParams {
+    truth: HbotParams,
+    sensor: LaserSensor,
+    plan: CompensationPlan,
+}
+
+/// `report`: the title and the machines it tabulates.
+#[derive(Debug, Clone, Serialize)]
+struct ReportParams {
+    title: String,
+    truth: HbotParams,
+    initial: HbotParams,
+    sensor: LaserSensor,
 }
 
 fn l27_csv(t: &TaguchiResult) -> String {
@@ -196,59 +256,66 @@ fn l27_csv(t: &TaguchiResult) -> String {
     out
 }
 
-/// Validate the spec and expand it into stages.
+/// Validate the spec and expand it into stages; each stage is keyed on its
+/// own slice of the study, so editing `[compensation]` reruns only
+/// `compensate` and `report`.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: HbotSpec = spec.parse()?;
     let cfg = s.config(spec)?;
-    let params = serde_json::to_value(&cfg).map_err(|e| spec.bad_value("truth", e.to_string()))?;
     let title = s.report.title.clone().unwrap_or_else(|| format!("{} — H-Bot dynamic identification and compensation", s.experiment.name));
+    let (truth, initial, sensor) = (cfg.truth, cfg.initial, cfg.sensor);
     Ok(vec![
-        Stage::new("measure", 1, params.clone(), |input| {
-            let cfg: StudyConfig = input.params()?;
-            let data = study::measure_protocol(&cfg, input.seed)?;
-            StageOutput::default().add_json("data.json", &data)?.add_json("truth.json", &cfg.truth)
-        }),
-        Stage::new("screen", 1, params.clone(), |input| {
-            let cfg: StudyConfig = input.params()?;
+        Stage::typed("measure", 1, MeasureParams { truth, sensor }, |input, p| {
+            let data = study::measure_protocol(&p.truth, &p.sensor, input.seed)?;
+            StageOutput::default().add_json("data.json", &data)?.add_json("truth.json", &p.truth)
+        })?,
+        Stage::typed("screen", 1, ScreenParams { initial, threshold: cfg.screening_threshold }, |input, p| {
             let data: StudyData = input.json("measure", "data.json")?;
-            let sc = study::run_screening(&cfg, &data)?;
+            let sc = study::run_screening(&p.initial, p.threshold, &data)?;
             let significant = sc.y.iter().chain(&sc.x).filter(|r| r.significant).count();
             Ok(StageOutput::default().add_json("screening.json", &sc)?.metric("significant_parameters", significant as f64))
-        })
+        })?
         .after(&["measure"]),
-        Stage::new("taguchi", 1, params.clone(), |input| {
-            let cfg: StudyConfig = input.params()?;
+        Stage::typed("taguchi", 1, TaguchiParams { initial, plan: cfg.taguchi_plan() }, |input, p| {
             let data: StudyData = input.json("measure", "data.json")?;
-            let t = study::run_taguchi(&cfg, &data)?;
+            let t = study::run_taguchi(&p.initial, &p.plan, &data)?;
             let mut out =
                 StageOutput::default().add("l27.csv", "text/csv", l27_csv(&t.bridge).into_bytes()).metric("confirmation_s_mm", t.bridge.confirmation_s_mm);
             if let Some(b2) = &t.bridge_second {
                 out = out.add("l27-round2.csv", "text/csv", l27_csv(b2).into_bytes()).metric("round2_confirmation_s_mm", b2.confirmation_s_mm);
             }
             out.add_json("taguchi.json", &t)?.add_json("params.json", &t.params)
-        })
+        })?
         .after(&["measure"]),
-        Stage::new("direct", 1, params.clone(), |input| {
-            let cfg: StudyConfig = input.params()?;
-            let data: StudyData = input.json("measure", "data.json")?;
-            let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
-            let d = study::run_direct(&cfg, &data, &t.params)?;
-            let v = study::verify(&cfg, &data, &t.params, &d.params)?;
-            Ok(StageOutput::default()
-                .add_json("direct.json", &d)?
-                .add_json("params.json", &d.params)?
-                .add_json("verification.json", &v)?
-                .metric("direct_s_mm", d.bridge.s_mm)
-                .metric("verify_taguchi_s_mm", v.taguchi_s_mm)
-                .metric("verify_direct_s_mm", v.direct_s_mm))
-        })
+        Stage::typed(
+            "direct",
+            1,
+            DirectParams {
+                free: cfg.bridge_factors.iter().map(|f| f.param).collect(),
+                cart_free: cfg.cart_factors.iter().map(|f| f.param).collect(),
+                initial,
+                truth,
+            },
+            |input, p| {
+                let data: StudyData = input.json("measure", "data.json")?;
+                let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
+                let d = study::run_direct(&p.free, &p.cart_free, &data, &t.params)?;
+                let v = study::verify(&p.initial, &p.truth, &data, &t.params, &d.params)?;
+                Ok(StageOutput::default()
+                    .add_json("direct.json", &d)?
+                    .add_json("params.json", &d.params)?
+                    .add_json("verification.json", &v)?
+                    .metric("direct_s_mm", d.bridge.s_mm)
+                    .metric("verify_taguchi_s_mm", v.taguchi_s_mm)
+                    .metric("verify_direct_s_mm", v.direct_s_mm))
+            },
+        )?
         .after(&["measure", "taguchi"]),
-        Stage::new("compensate", 1, params.clone(), |input| {
-            let cfg: StudyConfig = input.params()?;
+        Stage::typed("compensate", 1, CompensateParams { truth, sensor, plan: cfg.compensation_plan() }, |input, p| {
             let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
             let d: DirectStudy = input.json("direct", "direct.json")?;
-            let ct = study::run_compensation(&cfg, &t.params, input.seed)?;
-            let cd = study::run_compensation(&cfg, &d.params, input.seed)?;
+            let ct = study::run_compensation(&p.truth, &p.sensor, &p.plan, &t.params, input.seed)?;
+            let cd = study::run_compensation(&p.truth, &p.sensor, &p.plan, &d.params, input.seed)?;
             Ok(StageOutput::default()
                 .add_json("compensation-taguchi.json", &ct)?
                 .add_json("compensation-direct.json", &cd)?
@@ -256,11 +323,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .metric("mae_after_mm", ct.mae_after_mm)
                 .metric("mae_after_iterated_mm", ct.mae_after_iterated_mm)
                 .metric("mae_after_direct_mm", cd.mae_after_mm))
-        })
+        })?
         .after(&["taguchi", "direct"]),
-        Stage::new("report", 1, serde_json::json!({ "title": title, "study": params }), |input| {
-            let cfg: StudyConfig =
-                serde_json::from_value(input.params["study"].clone()).map_err(|e| crate::Error::Stage { stage: "report".into(), message: e.to_string() })?;
+        Stage::typed("report", 2, ReportParams { title, truth, initial, sensor }, |input, p| {
             let data: StudyData = input.json("measure", "data.json")?;
             let screening: Screening = input.json("screen", "screening.json")?;
             let taguchi: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
@@ -268,9 +333,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let verification: Verification = input.json("direct", "verification.json")?;
             let ct: CompensationReport = input.json("compensate", "compensation-taguchi.json")?;
             let cd: CompensationReport = input.json("compensate", "compensation-direct.json")?;
-            let title = input.params.get("title").and_then(|t| t.as_str()).unwrap_or("H-Bot identification");
             let view = fdmlab_reports::hbot::HbotStudyView {
-                cfg: &cfg,
+                truth: &p.truth,
+                initial: &p.initial,
+                sensor: &p.sensor,
                 data: &data,
                 screening: &screening,
                 taguchi: &taguchi,
@@ -279,8 +345,8 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 compensation_taguchi: &ct,
                 compensation_direct: &cd,
             };
-            StageOutput::default().add_report(&fdmlab_reports::hbot::study_report(title, &view))
-        })
+            StageOutput::default().add_report(&fdmlab_reports::hbot::study_report(&p.title, &view))
+        })?
         .after(&["measure", "screen", "taguchi", "direct", "compensate"]),
     ])
 }

@@ -3,9 +3,10 @@
 //! firmware/daemon exports → report.
 
 use crate::error::{Error, Result};
+use crate::requests::{CalibrationRequest, ValidCalibration};
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
-use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Manifest, Pattern, Printer};
+use fdmlab_datasets::pa::calibration::{Firmware, Manifest, Pattern};
 use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
 use fdmlab_datasets::pa::model::KaModel;
 use fdmlab_datasets::pa::{grid, scores, table};
@@ -35,7 +36,7 @@ pub struct PaSpec {
 }
 
 /// `[printer]`: `firmware` is required; unset limits and sizes are those of
-/// [`Printer::default`] (the source's Ender-3-class printer), extruder `bowden`.
+/// [`CalibrationRequest`] (the source's Ender-3-class printer), extruder `bowden`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PrinterSpec {
@@ -71,12 +72,13 @@ pub struct KRange {
     pub step: f64,
 }
 
-/// `[calibration]`: the print and its conditions.
+/// `[calibration]`: the print and its conditions; unset fields take the
+/// defaults of [`CalibrationRequest`] (shared with `fdmlab gcode pa`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationSpec {
-    #[serde(default = "d_pattern")]
-    pub pattern: String,
+    #[serde(default)]
+    pub pattern: Option<String>,
     pub k: KRange,
     pub material: String,
     pub hotend_c: f64,
@@ -87,10 +89,10 @@ pub struct CalibrationSpec {
     pub nozzle_setting_mm: Option<f64>,
     #[serde(default)]
     pub line: Option<LinePattern>,
-    #[serde(default = "d_spacing")]
-    pub spacing_mm: f64,
-    #[serde(default = "d_band")]
-    pub band_mm: f64,
+    #[serde(default)]
+    pub spacing_mm: Option<f64>,
+    #[serde(default)]
+    pub band_mm: Option<f64>,
 }
 
 /// `[[prints]]`: a printed and scored calibration; unset fields come from `[calibration]`.
@@ -164,15 +166,6 @@ impl Default for ExportSpec {
     }
 }
 
-fn d_pattern() -> String {
-    "lines".into()
-}
-fn d_spacing() -> f64 {
-    5.0
-}
-fn d_band() -> f64 {
-    2.0
-}
 fn d_scale() -> f64 {
     10.0
 }
@@ -180,12 +173,68 @@ fn d_scale() -> f64 {
 /// Features of the twin's grid and of ingested prints.
 const GRID_FEATURES: [&str; 5] = ["material", "extruder", "hotend_c", "nozzle_setting_mm", "layer_mm"];
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// `gcode`: one checked print (printer and calibration) and the features
+/// its scores add to the data set.
+#[derive(Debug, Clone, Serialize)]
 struct PrintJob {
-    printer: Printer,
-    calibration: Calibration,
+    #[serde(flatten)]
+    calibration: ValidCalibration,
     extruder: String,
     nozzle_setting_mm: f64,
+}
+
+/// `scores`: one scored print: its extruder and nozzle setting (features of
+/// the data set), the scores file as named in the spec, and the score scale.
+#[derive(Debug, Clone, Serialize)]
+struct ScoredPrint {
+    extruder: String,
+    nozzle_setting_mm: f64,
+    scores: String,
+    scale: f64,
+}
+
+/// `scores`: every scored print, in spec order.
+#[derive(Debug, Clone, Serialize)]
+struct ScoresParams {
+    prints: Vec<ScoredPrint>,
+}
+
+/// `dataset` from the twin: the grid it measures.
+#[derive(Debug, Clone, Serialize)]
+struct TwinDatasetParams {
+    grid: GridConfig,
+}
+
+/// `dataset` from a CSV named relative to the spec.
+#[derive(Debug, Clone, Serialize)]
+struct FileDatasetParams {
+    file: String,
+}
+
+/// `train`: network settings, folds, columns and which upstream output holds the table.
+#[derive(Debug, Clone, Serialize)]
+struct TrainParams {
+    settings: MlpSettings,
+    folds: usize,
+    target: String,
+    features: Option<Vec<String>>,
+    /// (stage, output) of the table.
+    data: (String, String),
+}
+
+/// `export`: formats and the values of the inputs an export does not sweep.
+#[derive(Debug, Clone, Serialize)]
+struct ExportParams {
+    formats: Vec<String>,
+    set: BTreeMap<String, String>,
+}
+
+/// `report`: the title and which sections exist.
+#[derive(Debug, Clone, Serialize)]
+struct ReportParams {
+    title: String,
+    prints: bool,
+    twin: bool,
 }
 
 fn toml_text(v: &toml::Value) -> String {
@@ -196,45 +245,32 @@ fn toml_text(v: &toml::Value) -> String {
 }
 
 impl PaSpec {
-    fn printer(&self, spec: &SpecFile) -> Result<Printer> {
-        let firmware = Firmware::parse(&self.printer.firmware).map_err(|e| spec.bad_value("printer.firmware", e.to_string()))?;
-        let (p, d) = (&self.printer, Printer::default());
-        Ok(Printer {
-            firmware,
-            bed_mm: p.bed_mm.unwrap_or(d.bed_mm),
-            max_z_mm: p.max_z_mm.unwrap_or(d.max_z_mm),
-            nozzle_mm: p.nozzle_mm.unwrap_or(d.nozzle_mm),
-            filament_mm: p.filament_mm.unwrap_or(d.filament_mm),
-            max_hotend_c: p.max_hotend_c.unwrap_or(d.max_hotend_c),
-            max_bed_c: p.max_bed_c.unwrap_or(d.max_bed_c),
-        })
-    }
-
-    fn calibration(&self, spec: &SpecFile, p: Option<&PrintSpec>) -> Result<Calibration> {
-        let c = &self.calibration;
-        let pattern = Pattern::parse(&c.pattern).map_err(|e| spec.bad_value("calibration.pattern", e.to_string()))?;
+    /// The calibration request of the base print (`p = None`) or of a scored
+    /// print (its fields override `[calibration]`).
+    fn request(&self, spec: &SpecFile, p: Option<&PrintSpec>) -> Result<CalibrationRequest> {
+        let (pr, c) = (&self.printer, &self.calibration);
+        let firmware = Firmware::parse(&pr.firmware).map_err(|e| spec.bad_value("printer.firmware", e.to_string()))?;
+        let pattern = c.pattern.as_deref().map(Pattern::parse).transpose().map_err(|e| spec.bad_value("calibration.pattern", e.to_string()))?;
         let k = p.and_then(|p| p.k).unwrap_or(c.k);
-        let line = c.line.unwrap_or(if pattern == Pattern::Tower {
-            LinePattern { slow_len_mm: 10.0, fast_len_mm: 30.0, ..LinePattern::default() }
-        } else {
-            LinePattern::default()
-        });
-        Ok(Calibration {
+        Ok(CalibrationRequest {
+            firmware: Some(firmware),
             pattern,
-            k_start: k.start,
-            k_end: k.end,
-            k_step: k.step,
-            material: p.and_then(|p| p.material.clone()).unwrap_or_else(|| c.material.clone()),
-            hotend_c: p.and_then(|p| p.hotend_c).unwrap_or(c.hotend_c),
-            bed_c: p.and_then(|p| p.bed_c).unwrap_or(c.bed_c),
-            layer_mm: p.and_then(|p| p.layer_mm).unwrap_or(c.layer_mm),
+            bed_mm: pr.bed_mm,
+            max_z_mm: pr.max_z_mm,
+            nozzle_mm: pr.nozzle_mm,
+            filament_mm: pr.filament_mm,
+            max_hotend_c: pr.max_hotend_c,
+            max_bed_c: pr.max_bed_c,
+            k: Some([k.start, k.end, k.step]),
+            material: Some(p.and_then(|p| p.material.clone()).unwrap_or_else(|| c.material.clone())),
+            hotend_c: Some(p.and_then(|p| p.hotend_c).unwrap_or(c.hotend_c)),
+            bed_c: Some(p.and_then(|p| p.bed_c).unwrap_or(c.bed_c)),
+            layer_mm: Some(p.and_then(|p| p.layer_mm).unwrap_or(c.layer_mm)),
             line_width_mm: None,
-            line,
+            line: c.line,
             spacing_mm: c.spacing_mm,
-            travel_mm_s: 120.0,
-            retract_mm: 0.8,
             band_mm: c.band_mm,
-            title: format!("fdmlab {}", self.experiment.name),
+            title: Some(format!("fdmlab {}", self.experiment.name)),
         })
     }
 
@@ -242,23 +278,15 @@ impl PaSpec {
     fn check(&self, spec: &SpecFile) -> Result<Vec<PrintJob>> {
         Extruder::parse(&self.printer.extruder()).map_err(|e| spec.bad_value("printer.extruder", e.to_string()))?;
         let mut jobs = Vec::new();
-        let printer = self.printer(spec)?;
-        let base = self.calibration(spec, None)?;
-        calibration::write(&printer, &base).map_err(|e| spec.bad_value("calibration", e.to_string()))?;
-        let ds = self.calibration.nozzle_setting_mm.unwrap_or(printer.nozzle_mm);
-        jobs.push(PrintJob { printer: printer.clone(), calibration: base, extruder: self.printer.extruder(), nozzle_setting_mm: ds });
+        let base = self.request(spec, None)?.check().map_err(|e| spec.bad_value("calibration", e.to_string()))?;
+        let ds = self.calibration.nozzle_setting_mm.unwrap_or(base.printer().nozzle_mm);
+        jobs.push(PrintJob { calibration: base, extruder: self.printer.extruder(), nozzle_setting_mm: ds });
         for (i, p) in self.prints.iter().enumerate() {
-            let c = self.calibration(spec, Some(p))?;
-            calibration::write(&printer, &c).map_err(|e| spec.bad_value(&format!("prints.{i}"), e.to_string()))?;
+            let c = self.request(spec, Some(p))?.check().map_err(|e| spec.bad_value(&format!("prints.{i}"), e.to_string()))?;
             if !(p.scale > 0.0 && p.scale <= 1000.0) {
                 return Err(spec.bad_value("prints.scale", "must be within (0, 1000]"));
             }
-            jobs.push(PrintJob {
-                printer: printer.clone(),
-                calibration: c,
-                extruder: self.printer.extruder(),
-                nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds),
-            });
+            jobs.push(PrintJob { calibration: c, extruder: self.printer.extruder(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
         }
         let m = &self.model;
         let rules: [(&str, bool, &str); 6] = [
@@ -292,16 +320,15 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let mut stages = Vec::new();
 
     // 1. G-code of every print, with manifests.
-    stages.push(Stage::new("gcode", 1, serde_json::to_value(&jobs).map_err(|e| spec.bad_value("calibration", e.to_string()))?, |input| {
-        let jobs: Vec<PrintJob> = input.params()?;
+    stages.push(Stage::typed("gcode", 1, jobs.clone(), |_, jobs| {
         let mut out = StageOutput::default();
         for (i, j) in jobs.iter().enumerate() {
-            let g = calibration::write(&j.printer, &j.calibration)?;
+            let g = j.calibration.write()?;
             let name = if i == 0 { "calibration".to_string() } else { format!("print-{i}") };
             out = out.add(&format!("{name}.gcode"), "text/x-gcode", g.text.into_bytes()).add_json(&format!("{name}.json"), &g.manifest)?;
         }
         Ok(out.metric("prints", jobs.len() as f64))
-    }));
+    })?);
 
     // 2. Scores of the printed calibrations.
     let score_files: Vec<PathBuf> = s
@@ -312,15 +339,17 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         .collect::<Result<_>>()?;
     if !s.prints.is_empty() {
         let files = score_files.clone();
-        let meta: Vec<(String, f64, String, f64)> =
-            jobs.iter().skip(1).zip(&s.prints).map(|(j, p)| (j.extruder.clone(), j.nozzle_setting_mm, p.scores.clone(), p.scale)).collect();
+        let prints: Vec<ScoredPrint> = jobs
+            .iter()
+            .skip(1)
+            .zip(&s.prints)
+            .map(|(j, p)| ScoredPrint { extruder: j.extruder.clone(), nozzle_setting_mm: j.nozzle_setting_mm, scores: p.scores.clone(), scale: p.scale })
+            .collect();
         stages.push(
-            Stage::new("scores", 1, serde_json::json!({ "prints": meta }), move |input| {
-                let meta: Vec<(String, f64, String, f64)> =
-                    serde_json::from_value(input.params["prints"].clone()).map_err(|e| Error::Stage { stage: "scores".into(), message: e.to_string() })?;
+            Stage::typed("scores", 2, ScoresParams { prints }, move |input, p| {
                 let mut results = Vec::new();
                 let mut csv = String::from("material,extruder,hotend_c,nozzle_setting_mm,layer_mm,k_a,k_a_sd,kendall_w\n");
-                for (i, ((extruder, ds, name, scale), path)) in meta.iter().zip(&files).enumerate() {
+                for (i, (ScoredPrint { extruder, nozzle_setting_mm: ds, scores: name, scale }, path)) in p.prints.iter().zip(&files).enumerate() {
                     let m: Manifest = input.json("gcode", &format!("print-{}.json", i + 1))?;
                     let ps = scores::ingest(&input.file(path)?, name, &m, *scale)?;
                     csv += &format!(
@@ -337,7 +366,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                     results.push(ps);
                 }
                 StageOutput::default().add("prints.csv", "text/csv", csv.into_bytes()).add_json("scores.json", &results)
-            })
+            })?
             .after(&["gcode"])
             .reading(score_files.clone()),
         );
@@ -346,17 +375,16 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     // 3. The K_A data set.
     let (dataset, target, features) = match s.dataset.source.as_str() {
         "twin" => {
-            stages.push(Stage::new("dataset", 1, serde_json::json!({ "grid": GridConfig { seed: s.experiment.seed, ..GridConfig::default() } }), |input| {
-                let cfg: GridConfig =
-                    serde_json::from_value(input.params["grid"].clone()).map_err(|e| Error::Stage { stage: "dataset".into(), message: e.to_string() })?;
-                let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
+            let grid = GridConfig { seed: s.experiment.seed, ..GridConfig::default() };
+            stages.push(Stage::typed("dataset", 1, TwinDatasetParams { grid }, |_, p| {
+                let rows = fdmlab_models::extrusion::grid::generate(&p.grid)?;
                 let max = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
                 Ok(StageOutput::default()
                     .add("data.csv", "text/csv", grid::grid_csv(&rows).into_bytes())
                     .add("truth.csv", "text/csv", grid::truth_csv(&rows).into_bytes())
                     .metric("rows", rows.len() as f64)
                     .metric("max_measurement_error", max))
-            }));
+            })?);
             ("dataset", "k_a".to_string(), Some(GRID_FEATURES.iter().map(|s| s.to_string()).collect::<Vec<_>>()))
         }
         "file" => {
@@ -364,9 +392,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let path = spec.input_file("dataset.file", &rel)?;
             let p2 = path.clone();
             stages.push(
-                Stage::new("dataset", 1, serde_json::json!({ "file": rel }), move |input| {
+                Stage::typed("dataset", 1, FileDatasetParams { file: rel }, move |input, _| {
                     Ok(StageOutput::default().add("data.csv", "text/csv", input.file(&p2)?))
-                })
+                })?
                 .reading(vec![path]),
             );
             ("dataset", s.dataset.target.clone(), s.dataset.features.clone())
@@ -380,20 +408,13 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         hidden: s.model.hidden,
         train: TrainConfig { epochs: s.model.epochs, batch_size: s.model.batch, learning_rate: s.model.learning_rate, seed: s.experiment.seed },
     };
-    let train_params =
-        serde_json::json!({ "settings": settings, "folds": s.model.folds, "target": target, "features": features, "data": [dataset, data_name] });
+    let train_params = TrainParams { settings, folds: s.model.folds, target, features, data: (dataset.to_string(), data_name.to_string()) };
     stages.push(
-        Stage::new("train", 2, train_params, move |input| {
-            let settings: MlpSettings =
-                serde_json::from_value(input.params["settings"].clone()).map_err(|e| Error::Stage { stage: "train".into(), message: e.to_string() })?;
-            let folds = input.params["folds"].as_u64().unwrap_or(5) as usize;
-            let target = input.params["target"].as_str().unwrap_or("k_a").to_string();
-            let features: Option<Vec<String>> = serde_json::from_value(input.params["features"].clone()).unwrap_or(None);
-            let src = input.params["data"][0].as_str().unwrap_or("dataset").to_string();
-            let name = input.params["data"][1].as_str().unwrap_or("data.csv").to_string();
-            let bytes = input.output(&src, &name)?;
-            let t = table::load(&bytes, &name, &target, features.as_deref())?;
-            let (km, cv) = KaModel::train(&t, &settings, folds.min(t.design.rows()))?;
+        Stage::typed("train", 3, train_params, move |input, p| {
+            let (src, name) = &p.data;
+            let bytes = input.output(src, name)?;
+            let t = table::load(&bytes, name, &p.target, p.features.as_deref())?;
+            let (km, cv) = KaModel::train(&t, &p.settings, p.folds.min(t.design.rows()))?;
             let bpk = km.model.to_burnpack()?;
             let mut out = StageOutput::default()
                 .add("model.json", "application/json", km.to_json()?)
@@ -403,27 +424,25 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 out = out.metric(&format!("{}_mae", m.name), m.mae).metric(&format!("{}_max_error", m.name), m.max_error);
             }
             Ok(out)
-        })
+        })?
         .after(&[dataset]),
     );
 
     // 5. Exports.
     let fixed: BTreeMap<String, String> = s.export.set.iter().map(|(k, v)| (k.clone(), toml_text(v))).collect();
     stages.push(
-        Stage::new("export", 1, serde_json::json!({ "formats": s.export.formats, "set": fixed }), |input| {
+        Stage::typed("export", 1, ExportParams { formats: s.export.formats.clone(), set: fixed }, |input, p| {
             let km = KaModel::from_json(&input.output("train", "model.json")?, "model.json")?;
-            let formats: Vec<String> = serde_json::from_value(input.params["formats"].clone()).unwrap_or_default();
-            let fixed: BTreeMap<String, String> = serde_json::from_value(input.params["set"].clone()).unwrap_or_default();
             let label = format!("model {}", &crate::store::Hash::of(&input.output("train", "model.json")?).0[..12]);
             let mut out = StageOutput::default();
-            for f in formats {
-                let fmt = ExportFormat::parse(&f)?;
-                let opts = ExportOptions { fixed: fixed.clone(), label: label.clone(), ..ExportOptions::default() };
+            for f in &p.formats {
+                let fmt = ExportFormat::parse(f)?;
+                let opts = ExportOptions { fixed: p.set.clone(), label: label.clone(), ..ExportOptions::default() };
                 let text = export::export(&km, fmt, &opts)?;
                 out = out.add(&format!("ka-{f}.{}", fmt.extension()), "text/plain", text.into_bytes());
             }
             Ok(out)
-        })
+        })?
         .after(&["train"]),
     );
 
@@ -439,15 +458,14 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     }
     let title = format!("{} — pressure advance (K_A)", s.experiment.name);
     stages.push(
-        Stage::new("report", 1, serde_json::json!({ "title": title, "prints": has_prints, "twin": twin }), move |input| {
+        Stage::typed("report", 1, ReportParams { title, prints: has_prints, twin }, |input, p| {
             let km = KaModel::from_json(&input.output("train", "model.json")?, "model.json")?;
             let cv: CvReport = input.json("train", "cv.json")?;
-            let prints: Vec<scores::PrintScores> = if has_prints { input.json("scores", "scores.json")? } else { vec![] };
-            let title = input.params["title"].as_str().unwrap_or("pressure advance").to_string();
-            let data = if twin { Some(input.output("dataset", "data.csv")?) } else { None };
-            let report = report(&title, &km, &cv, &prints, data.as_deref())?;
+            let prints: Vec<scores::PrintScores> = if p.prints { input.json("scores", "scores.json")? } else { vec![] };
+            let data = if p.twin { Some(input.output("dataset", "data.csv")?) } else { None };
+            let report = report(&p.title, &km, &cv, &prints, data.as_deref())?;
             StageOutput::default().add_report(&report)
-        })
+        })?
         .after(&deps),
     );
     Ok(stages)

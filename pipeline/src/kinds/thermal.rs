@@ -86,7 +86,7 @@ fn default_ambient() -> f64 {
     25.0
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, Serialize)]
 struct SimulateParams {
     plant: FirstOrderPlant,
     protocol: StepProtocol,
@@ -123,43 +123,65 @@ impl ThermalSpec {
     }
 }
 
+/// `ingest`: the measured log, named relative to the spec.
+#[derive(Debug, Clone, Serialize)]
+struct IngestParams {
+    log: String,
+}
+
+/// `identify`: the families to fit.
+#[derive(Debug, Clone, Serialize)]
+struct IdentifyParams {
+    families: Vec<String>,
+}
+
+/// `report`: presentation only.
+#[derive(Debug, Clone, Serialize)]
+struct ReportParams {
+    title: String,
+}
+
 /// Validate the spec and expand it into stages.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: ThermalSpec = spec.parse()?;
     s.check(spec)?;
     let plant = FirstOrderPlant { gain_c: s.plant.gain_c, tau_s: s.plant.tau_s, ambient_c: s.plant.ambient_c };
-    let sim = SimulateParams { plant, protocol: s.protocol, sensor: s.sensor };
-    let sim_params = serde_json::to_value(&sim).map_err(|e| spec.bad_value("plant", e.to_string()))?;
     let title = s.report.title.clone().unwrap_or_else(|| format!("{} — first-order hotend identification", s.experiment.name));
     let source = match &s.data {
         Some(d) => {
             let path = spec.input_file("data.log", &d.log)?;
-            let label = d.log.clone();
             let declared = path.clone();
-            Stage::new("ingest", 2, serde_json::json!({ "log": d.log }), move |input| {
+            Stage::typed("ingest", 2, IngestParams { log: d.log.clone() }, move |input, p| {
                 let bytes = input.file(&path)?;
                 let text = String::from_utf8_lossy(&bytes);
-                let (experiment, notes) = fdmlab_datasets::thermal::read_log(&text, &label, &fdmlab_datasets::thermal::ReadOptions::default())?;
+                let (experiment, notes) = fdmlab_datasets::thermal::read_log(&text, &p.log, &fdmlab_datasets::thermal::ReadOptions::default())?;
                 let log = StepLog::from(&experiment);
                 // What the reader ignored or skipped (unknown columns, unparsed
                 // lines) is shown and kept with the run, as `thermal identify` does.
                 let mut out = StageOutput::default().add_json("log.json", &log)?;
                 if !notes.is_empty() {
                     for n in &notes {
-                        eprintln!("{label}: {n}");
+                        eprintln!("{}: {n}", p.log);
                     }
-                    out = out.add("ingest-notes.txt", "text/plain", notes.iter().map(|n| format!("{label}: {n}\n")).collect::<String>().into_bytes());
+                    out = out.add("ingest-notes.txt", "text/plain", notes.iter().map(|n| format!("{}: {n}\n", p.log)).collect::<String>().into_bytes());
                 }
                 Ok(out)
-            })
+            })?
             .reading(vec![declared])
         }
-        None => simulate_stage(sim_params),
+        None => Stage::typed("simulate", 1, SimulateParams { plant, protocol: s.protocol, sensor: s.sensor }, |input, p| {
+            let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
+            let csv = fdmlab_datasets::csv::write_columns(
+                &["time_s", "heater_duty", "fan_duty", "temperature_c"],
+                &[&log.time_s, &log.heater_duty, &log.fan_duty, &log.temperature_c],
+            );
+            StageOutput::default().add("log.csv", "text/csv", csv.into_bytes()).add_json("log.json", &log)?.add_json("truth.json", &p.plant)
+        })?,
     };
     let src: &'static str = if s.data.is_some() { "ingest" } else { "simulate" };
     Ok(vec![
         source,
-        Stage::new("identify", 1, serde_json::json!({ "families": s.identify.families }), move |input| {
+        Stage::typed("identify", 1, IdentifyParams { families: s.identify.families.clone() }, move |input, _| {
             let log: StepLog = input.json(src, "log.json")?;
             let fit = first_order::fit(&log)?;
             Ok(StageOutput::default()
@@ -168,28 +190,14 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .metric("rms_c", fit.rms_c)
                 .metric("gain_c", fit.plant.gain_c)
                 .metric("tau_s", fit.plant.tau_s))
-        })
+        })?
         .after(&[src]),
-        Stage::new("report", 1, serde_json::json!({ "title": title }), move |input| {
+        Stage::typed("report", 1, ReportParams { title }, move |input, p| {
             let log: StepLog = input.json(src, "log.json")?;
             let truth: Option<FirstOrderPlant> = if src == "simulate" { Some(input.json("simulate", "truth.json")?) } else { None };
             let fit: first_order::FirstOrderFit = input.json("identify", "first-order.json")?;
-            let title = input.params.get("title").and_then(|t| t.as_str()).unwrap_or("thermal identification");
-            StageOutput::default().add_report(&fdmlab_reports::thermal::first_order_report(title, &log, &fit, truth.as_ref()))
-        })
+            StageOutput::default().add_report(&fdmlab_reports::thermal::first_order_report(&p.title, &log, &fit, truth.as_ref()))
+        })?
         .after(&[src, "identify"]),
     ])
-}
-
-/// The twin's step test as a stage.
-fn simulate_stage(sim_params: serde_json::Value) -> Stage {
-    Stage::new("simulate", 1, sim_params, |input| {
-        let p: SimulateParams = input.params()?;
-        let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
-        let csv = fdmlab_datasets::csv::write_columns(
-            &["time_s", "heater_duty", "fan_duty", "temperature_c"],
-            &[&log.time_s, &log.heater_duty, &log.fan_duty, &log.temperature_c],
-        );
-        StageOutput::default().add("log.csv", "text/csv", csv.into_bytes()).add_json("log.json", &log)?.add_json("truth.json", &p.plant)
-    })
 }

@@ -95,11 +95,29 @@ impl Default for ExportSection {
     }
 }
 
-#[derive(Debug, Clone, Deserialize)]
+/// `grid`: the twin and its step-test protocol.
+#[derive(Debug, Clone, Serialize)]
+struct GridParams {
+    twin: Twin,
+    protocol: StepTest,
+}
+
+/// `identify`: black-box families, orders and horizon.
+#[derive(Debug, Clone, Serialize)]
 struct IdentParams {
     families: Vec<Family>,
     orders: Vec<usize>,
     horizon: usize,
+}
+
+/// `crossval`: no parameters of its own (every model × every verification set).
+#[derive(Debug, Clone, Serialize)]
+struct CrossvalParams {}
+
+/// `report`: presentation only.
+#[derive(Debug, Clone, Serialize)]
+struct ReportParams {
+    title: String,
 }
 
 /// A model with where it came from and its own-data fit.
@@ -150,28 +168,20 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: GridSpec = spec.parse()?;
     let families = check(&s, spec)?;
     let title = format!("{} — hotend identification across orders, cross-validation and control", s.experiment.name);
-    let grid_params = serde_json::json!({ "twin": s.twin, "protocol": s.protocol });
-    let ident_params = serde_json::json!({ "families": families, "orders": s.identify.orders, "horizon": s.identify.horizon });
-    let control_params = serde_json::to_value(&s.control).map_err(|e| spec.bad_value("control", e.to_string()))?;
-    let export_params = serde_json::to_value(&s.export).map_err(|e| spec.bad_value("export", e.to_string()))?;
+    let ident_params = IdentParams { families, orders: s.identify.orders.clone(), horizon: s.identify.horizon };
     Ok(vec![
-        Stage::new("grid", 1, grid_params, |input| {
-            let twin: Twin =
-                serde_json::from_value(input.params["twin"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
-            let protocol: StepTest =
-                serde_json::from_value(input.params["protocol"].clone()).map_err(|e| crate::Error::Stage { stage: "grid".into(), message: e.to_string() })?;
-            let ident = twin.grid(&identification_grid(), &protocol, input.seed)?;
-            let verif = twin.grid(&verification_grid(), &protocol, input.seed.wrapping_add(1))?;
+        Stage::typed("grid", 1, GridParams { twin: s.twin, protocol: s.protocol }, |input, p| {
+            let ident = p.twin.grid(&identification_grid(), &p.protocol, input.seed)?;
+            let verif = p.twin.grid(&verification_grid(), &p.protocol, input.seed.wrapping_add(1))?;
             let mut out = StageOutput::default().add_json("ident.json", &ident)?.add_json("verif.json", &verif)?;
             for e in ident.iter().chain(&verif) {
                 out = out.add(&format!("{}.csv", e.name), "text/csv", fdmlab_datasets::thermal::csv::write(e).into_bytes());
             }
             Ok(out)
-        }),
-        Stage::new("identify", 1, ident_params, |input| {
+        })?,
+        Stage::typed("identify", 1, ident_params, |input, p| {
             let ident: Vec<Experiment> = input.json("grid", "ident.json")?;
-            let p: IdentParams = input.params()?;
-            let opts = IdentOptions { families: p.families, orders: p.orders, horizon: p.horizon, ..Default::default() };
+            let opts = IdentOptions { families: p.families.clone(), orders: p.orders.clone(), horizon: p.horizon, ..Default::default() };
             let mut entries = Vec::new();
             let mut failures = Vec::new();
             for (i, e) in ident.iter().enumerate() {
@@ -187,19 +197,18 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             entries.extend(grey.models.into_iter().map(|m| Entry { label: "all/greybox-2".into(), own_fit_percent: m.score.fit_percent, model: m.model }));
             failures.extend(grey.failures.into_iter().map(|f| format!("all/greybox: {}", f.reason)));
             Ok(StageOutput::default().add_json("models.json", &entries)?.add_json("failures.json", &failures)?.metric("models", entries.len() as f64))
-        })
+        })?
         .after(&["grid"]),
-        Stage::new("crossval", 1, serde_json::json!({}), |input| {
+        Stage::typed("crossval", 1, CrossvalParams {}, |input, _| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let verif: Vec<Experiment> = input.json("grid", "verif.json")?;
             let models: Vec<(String, ThermalModel, f64)> = entries.into_iter().map(|e| (e.label, e.model, e.own_fit_percent)).collect();
             let cv = crossval::cross_validate(&models, &verif);
             let best = cv.mean_fit_percent.get(cv.best).copied().unwrap_or(f64::NAN);
             Ok(StageOutput::default().add_json("crossval.json", &cv)?.metric("best_mean_fit_percent", best))
-        })
+        })?
         .after(&["identify", "grid"]),
-        Stage::new("control", 1, control_params, |input| {
-            let c: ControlSection = input.params()?;
+        Stage::typed("control", 1, s.control.clone(), |input, c| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
             let best = &entries[cv.best.min(entries.len().saturating_sub(1))];
@@ -235,10 +244,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .metric("best_model_order", plant.order() as f64)
                 .metric("state_feedback_rms_after_reach", sf.metrics.rms_after_reach.unwrap_or(f64::NAN))
                 .metric("imc_rms_after_reach", imc.metrics.rms_after_reach.unwrap_or(f64::NAN)))
-        })
+        })?
         .after(&["identify", "crossval"]),
-        Stage::new("export", 1, export_params, |input| {
-            let x: ExportSection = input.params()?;
+        Stage::typed("export", 1, s.export.clone(), |input, x| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let placement: control::Placement = input.json("control", "placement.json")?;
             let pid: control::Pid = input.json("control", "pid.json")?;
@@ -265,17 +273,17 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .add("marlin-pid.gcode", "text/plain", ex::marlin_pid(&pid, "fdmlab thermal-grid best generaliser")?.into_bytes())
                 .add("klipper-pid.cfg", "text/plain", ex::klipper_pid(&pid, "fdmlab thermal-grid best generaliser")?.into_bytes())
                 .add("thermal_gains.h", "text/x-c", ex::c_header(&placement, "best generaliser")?.into_bytes()))
-        })
+        })?
         .after(&["identify", "control"]),
-        Stage::new("report", 2, serde_json::json!({ "title": title }), |input| {
-            let title = input.params.get("title").and_then(|t| t.as_str()).unwrap_or("thermal grid").to_string();
+        Stage::typed("report", 2, ReportParams { title }, |input, p| {
+            let title = &p.title;
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
             let verif: Vec<Experiment> = input.json("grid", "verif.json")?;
             let responses: BTreeMap<String, control::Response> = input.json("control", "responses.json")?;
             let source: serde_json::Value = input.json("control", "source-designs.json")?;
-            StageOutput::default().add_report(&report(&title, &entries, &cv, &verif, &responses, &source))
-        })
+            StageOutput::default().add_report(&report(title, &entries, &cv, &verif, &responses, &source))
+        })?
         .after(&["identify", "crossval", "grid", "control"]),
     ])
 }

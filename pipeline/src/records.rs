@@ -1,0 +1,122 @@
+//! What the store records: stage records (the cache), run records and the
+//! references between them. Plain data; [`crate::store::Store`] reads and
+//! writes them, [`crate::runs`] queries them.
+
+use crate::hash::Hash;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// A named input of a stage and its hash.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct InputRef {
+    /// `stage/output` for upstream outputs, `file:<path>` for external files.
+    pub name: String,
+    /// Content hash.
+    pub hash: Hash,
+}
+
+/// An artifact a stage produced, as recorded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OutputRef {
+    /// Output name, unique within the stage (a safe file name).
+    pub name: String,
+    /// Content hash.
+    pub hash: Hash,
+    /// Media type (`application/json`, `text/csv`, `text/x-gcode`, ...).
+    pub media_type: String,
+    /// Size in bytes.
+    pub bytes: u64,
+}
+
+/// What the store remembers of a finished stage (`stages/<key>.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRecord {
+    /// Cache key.
+    pub key: String,
+    /// Experiment kind.
+    pub kind: String,
+    /// Stage name.
+    pub stage: String,
+    /// Stage version.
+    pub version: u32,
+    /// Code identity of the build that produced it ([`crate::stage::CODE_IDENTITY`];
+    /// empty in records older than this field).
+    #[serde(default)]
+    pub code: String,
+    /// Validated parameters.
+    pub params: serde_json::Value,
+    /// Inputs.
+    pub inputs: Vec<InputRef>,
+    /// Outputs.
+    pub outputs: Vec<OutputRef>,
+    /// Scalar results (non-finite ones stored as `null`).
+    #[serde(with = "fdmlab_models::nonfinite::map")]
+    pub metrics: BTreeMap<String, f64>,
+    /// Wall time of the run that produced it, s.
+    pub wall_s: f64,
+}
+
+/// One stage as it happened in a run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRun {
+    /// Stage name.
+    pub name: String,
+    /// Cache key.
+    pub key: String,
+    /// Stage version.
+    pub version: u32,
+    /// True when the result came from the store without running.
+    pub cached: bool,
+    /// Validated parameters.
+    pub params: serde_json::Value,
+    /// Inputs.
+    pub inputs: Vec<InputRef>,
+    /// Outputs.
+    pub outputs: Vec<OutputRef>,
+    /// Scalar results (non-finite ones stored as `null`).
+    #[serde(with = "fdmlab_models::nonfinite::map")]
+    pub metrics: BTreeMap<String, f64>,
+    /// Wall time in this run, s (≈ 0 when cached).
+    pub wall_s: f64,
+}
+
+/// The record of one `fdmlab run` or artifact-producing command.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    /// Run id: `YYYYMMDD-HHMMSS.micros-<6 hex>` (UTC), sortable by start time.
+    pub id: String,
+    /// Experiment name (or the command for one-shot commands).
+    pub experiment: String,
+    /// Experiment kind (`command` for one-shot commands).
+    pub kind: String,
+    /// Spec path relative to the working folder (its file name when outside
+    /// it; empty for commands): never an absolute machine path.
+    pub spec_path: String,
+    /// blake3 of the spec text (or of the command's parameters).
+    pub spec_hash: String,
+    /// Seed.
+    pub seed: u64,
+    /// fdmlab version that ran it.
+    pub fdmlab_version: String,
+    /// `git rev-parse HEAD` of the spec's folder, when available.
+    pub git_rev: Option<String>,
+    /// Start time, UTC, ISO 8601.
+    pub started_at: String,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Stages in execution order.
+    pub stages: Vec<StageRun>,
+    /// Where the reports were materialised, relative to the store root, if any.
+    pub reports_dir: Option<String>,
+}
+
+impl RunRecord {
+    /// Number of stages that actually ran (not cached).
+    pub fn stages_run(&self) -> usize {
+        self.stages.iter().filter(|s| !s.cached).count()
+    }
+    /// Every blob hash the run references (inputs and outputs).
+    pub fn blobs(&self) -> impl Iterator<Item = &Hash> {
+        self.stages.iter().flat_map(|s| s.inputs.iter().map(|i| &i.hash).chain(s.outputs.iter().map(|o| &o.hash)))
+    }
+}
