@@ -93,9 +93,31 @@ struct SimulateParams {
     sensor: SensorNoise,
 }
 
+/// A checked `thermal-ident` spec (private fields): the only form the
+/// stages are built from. Limits (one table, in docs/thermal.md):
+///
+/// | key | default | limits |
+/// |---|---|---|
+/// | `plant.model` | — | `first-order` |
+/// | `plant.gain_c` | — | (0, 1000] °C |
+/// | `plant.tau_s` | — | (0, 10000] s |
+/// | `plant.ambient_c` | 25 °C | −40..80 °C |
+/// | `protocol.duty` | — | (0, 1] |
+/// | `protocol.heat_s` | — | (0, 86400] s |
+/// | `protocol.cool_s` | — | 0..86400 s |
+/// | `protocol.dt_s` | — | > 0, ≥ 10 samples while heating |
+/// | `sensor.sigma_c`, `sensor.quantum_c` | 0, 0 | 0..50 °C, 0..10 °C |
+/// | `identify.families` | `["first-order"]` | `first-order` |
+struct ValidThermalSpec {
+    simulate: SimulateParams,
+    families: Vec<String>,
+    data: Option<DataSpec>,
+    title: String,
+}
+
 impl ThermalSpec {
-    /// Range checks, each located in the spec.
-    fn check(&self, spec: &SpecFile) -> Result<()> {
+    /// Range checks, each located in the spec; the checked spec.
+    fn check(self, spec: &SpecFile) -> Result<ValidThermalSpec> {
         let p = &self.plant;
         let rules: [(&str, bool, &str); 11] = [
             ("plant.model", p.model == "first-order", "the twin model must be `first-order`"),
@@ -119,7 +141,14 @@ impl ThermalSpec {
                 return Err(spec.bad_value(key, why));
             }
         }
-        Ok(())
+        let title = self.report.title.unwrap_or_else(|| format!("{} — first-order hotend identification", self.experiment.name));
+        let plant = FirstOrderPlant { gain_c: p.gain_c, tau_s: p.tau_s, ambient_c: p.ambient_c };
+        Ok(ValidThermalSpec {
+            simulate: SimulateParams { plant, protocol: self.protocol, sensor: self.sensor },
+            families: self.identify.families,
+            data: self.data,
+            title,
+        })
     }
 }
 
@@ -143,10 +172,7 @@ struct ReportParams {
 
 /// Validate the spec and expand it into stages.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
-    let s: ThermalSpec = spec.parse()?;
-    s.check(spec)?;
-    let plant = FirstOrderPlant { gain_c: s.plant.gain_c, tau_s: s.plant.tau_s, ambient_c: s.plant.ambient_c };
-    let title = s.report.title.clone().unwrap_or_else(|| format!("{} — first-order hotend identification", s.experiment.name));
+    let s = spec.parse::<ThermalSpec>()?.check(spec)?;
     let source = match &s.data {
         Some(d) => {
             let path = spec.input_file("data.log", &d.log)?;
@@ -169,7 +195,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             })?
             .reading(vec![declared])
         }
-        None => Stage::typed("simulate", 1, SimulateParams { plant, protocol: s.protocol, sensor: s.sensor }, |input, p| {
+        None => Stage::typed("simulate", 1, s.simulate, |input, p| {
             let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;
             let csv = fdmlab_datasets::csv::write_columns(
                 &["time_s", "heater_duty", "fan_duty", "temperature_c"],
@@ -181,7 +207,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let src: &'static str = if s.data.is_some() { "ingest" } else { "simulate" };
     Ok(vec![
         source,
-        Stage::typed("identify", 1, IdentifyParams { families: s.identify.families.clone() }, move |input, _| {
+        Stage::typed("identify", 1, IdentifyParams { families: s.families }, move |input, _| {
             let log: StepLog = input.json(src, "log.json")?;
             let fit = first_order::fit(&log)?;
             Ok(StageOutput::default()
@@ -192,7 +218,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .metric("tau_s", fit.plant.tau_s))
         })?
         .after(&[src]),
-        Stage::typed("report", 1, ReportParams { title }, move |input, p| {
+        Stage::typed("report", 1, ReportParams { title: s.title }, move |input, p| {
             let log: StepLog = input.json(src, "log.json")?;
             let truth: Option<FirstOrderPlant> = if src == "simulate" { Some(input.json("simulate", "truth.json")?) } else { None };
             let fit: first_order::FirstOrderFit = input.json("identify", "first-order.json")?;
