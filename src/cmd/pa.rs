@@ -135,7 +135,8 @@ fn parse_pair(s: &str) -> Option<[f64; 2]> {
     Some([a.trim().parse().ok()?, b.trim().parse().ok()?])
 }
 
-fn manifest_path(gcode: &Path) -> PathBuf {
+/// `<gcode>.json`: where a G-code's manifest is written.
+pub(crate) fn manifest_path(gcode: &Path) -> PathBuf {
     let mut s = gcode.as_os_str().to_owned();
     s.push(".json");
     PathBuf::from(s)
