@@ -129,7 +129,8 @@ impl GcodePaArgs {
     }
 }
 
-fn manifest_path(gcode: &Path) -> PathBuf {
+/// `<gcode>.json`: where a G-code's manifest is written.
+pub(crate) fn manifest_path(gcode: &Path) -> PathBuf {
     let mut s = gcode.as_os_str().to_owned();
     s.push(".json");
     PathBuf::from(s)

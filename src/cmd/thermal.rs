@@ -1,10 +1,11 @@
 //! `fdmlab thermal …` (identify, place, simulate, grid, gcode), `fdmlab export
 //! thermal` and `fdmlab bench thermal`.
 
-use super::values::{parse_bed_mm, value_name, LogFormatArg, MethodArg, ThermalFormatArg};
+use super::values::{parse_bed_mm, value_name, FirmwareArg, LogFormatArg, MethodArg, ThermalFormatArg};
 use super::Ctx;
 use anyhow::Context;
-use fdmlab_datasets::thermal::{self as tlog, export, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
+use fdmlab_datasets::pa::calibration::Firmware;
+use fdmlab_datasets::thermal::{self as tlog, export, manifest, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
 use fdmlab_models::thermal::control::{self, LoopSetup, PlacementMethod};
 use fdmlab_models::thermal::crossval;
 use fdmlab_models::thermal::data::Experiment;
@@ -13,7 +14,7 @@ use fdmlab_models::thermal::model::{Family, ThermalModel};
 use fdmlab_models::thermal::ss::StateSpace;
 use fdmlab_models::thermal::twin::{self, StepTest, Twin};
 use fdmlab_pipeline::stage::{Artifact, InputRef};
-use fdmlab_pipeline::store::write_file_atomic;
+use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
 use fdmlab_pipeline::{Error, Hash};
 use nalgebra::{Complex, DMatrix};
 use serde_json::json;
@@ -94,6 +95,11 @@ pub struct IdentifyArgs {
     /// Verification logs: score every model on each (cross-validation matrix).
     #[arg(long, num_args = 1..)]
     verify: Vec<PathBuf>,
+    /// Step-test manifest (`<gcode>.json` from `thermal gcode`) joined with the
+    /// log by time: fan duty and head height come from the protocol. One per
+    /// identification log, in order.
+    #[arg(long, value_name = "M.json")]
+    manifest: Vec<PathBuf>,
     #[command(flatten)]
     read: LogArgs,
 }
@@ -159,6 +165,11 @@ pub struct GridArgs {
 /// `fdmlab thermal gcode`
 #[derive(clap::Args)]
 pub struct GcodeArgs {
+    /// Firmware dialect: Marlin (M155 auto-report, M109 S/R waits), Klipper
+    /// (SET_HEATER_TEMPERATURE, TEMPERATURE_WAIT, G4 P) or RepRapFirmware 3
+    /// (M104 on tool 0, M116 waits, M106 S as a fraction).
+    #[arg(long, value_enum, default_value = "marlin")]
+    firmware: FirmwareArg,
     /// Bed size XxY, mm.
     #[arg(long = "bed-mm", value_name = "XxY", default_value = "200x200", value_parser = parse_bed_mm)]
     bed_mm: [f64; 2],
@@ -168,9 +179,12 @@ pub struct GcodeArgs {
     /// Hotend temperature limit, °C.
     #[arg(long = "max-hotend-c", default_value_t = 260.0)]
     max_hotend_c: f64,
-    /// Hold at target, s.
-    #[arg(long = "hold-s", default_value_t = 60.0)]
-    hold_s: f64,
+    /// Heater on per run (heat up and hold), s.
+    #[arg(long = "heat-s", default_value_t = 600.0)]
+    heat_s: f64,
+    /// Heater off, fan full, per run before the next one, s.
+    #[arg(long = "cool-s", default_value_t = 900.0)]
+    cool_s: f64,
     /// Start (cool-back) temperature, °C.
     #[arg(long = "start-c", default_value_t = 40.0)]
     start_c: f64,
@@ -180,7 +194,7 @@ pub struct GcodeArgs {
     /// Lowest Z, mm.
     #[arg(long = "min-z", default_value_t = 0.5)]
     min_z: f64,
-    /// Output file (default stdout).
+    /// Output file; its manifest goes to `<out>.json` (default: G-code on stdout, no manifest).
     #[arg(short, long)]
     out: Option<PathBuf>,
 }
@@ -238,22 +252,66 @@ fn bad(msg: impl Into<String>) -> anyhow::Error {
 /// A file's name (as recorded) and its text.
 type NamedText = (String, String);
 
-/// Parse every log; returns the experiments and each file's (name, text) for
-/// [`store_inputs`] once the store is open (bad input writes nothing).
-fn read_logs(paths: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<Experiment>, Vec<NamedText>)> {
-    let mut exps = Vec::new();
+/// One log as read: the experiment, how regular its time stamps were and,
+/// joined with a manifest, the alignment found.
+struct LogRead {
+    experiment: Experiment,
+    sampling: Option<tlog::Sampling>,
+    alignment: Option<manifest::Alignment>,
+}
+
+impl LogRead {
+    /// What the JSON output and the run record say about this log.
+    fn summary(&self) -> serde_json::Value {
+        let mut v = json!({"file": self.experiment.name, "rows": self.experiment.len(), "dt_s": self.experiment.dt_s, "sampling": self.sampling});
+        if let Some(a) = &self.alignment {
+            v["alignment"] = json!(a);
+        }
+        v
+    }
+}
+
+/// Parse every log (joined with its manifest, if any); returns the logs and
+/// each file's (name, text) for [`store_inputs`] once the store is open (bad
+/// input writes nothing).
+fn read_logs(paths: &[PathBuf], manifests: &[PathBuf], opts: &ReadOptions) -> anyhow::Result<(Vec<LogRead>, Vec<NamedText>)> {
+    if !manifests.is_empty() && manifests.len() != paths.len() {
+        return Err(bad(format!("--manifest: give one manifest per log ({} logs, {} manifests)", paths.len(), manifests.len())));
+    }
+    let mut logs = Vec::new();
     let mut files = Vec::new();
-    for p in paths {
+    for (i, p) in paths.iter().enumerate() {
         let text = super::read_input_text(p)?;
         let name = p.display().to_string();
-        let (e, notes) = tlog::read_log(&text, &name, opts)?;
-        for n in notes {
+        let mut raw = tlog::parse_raw(&text, &name, opts)?;
+        let mut alignment = None;
+        if let Some(mp) = manifests.get(i) {
+            let mtext = super::read_input_text(mp)?;
+            let mname = mp.display().to_string();
+            let m = manifest::parse(&mtext, &mname)?;
+            let (joined, a) = manifest::join(&raw, &m, &mname)?;
+            raw = joined;
+            alignment = Some(a);
+            files.push((fdmlab_pipeline::engine::portable_path(mp), mtext));
+        }
+        let experiment = raw.to_experiment(&opts.uniformity)?;
+        for n in &raw.notes {
             eprintln!("{name}: {n}");
         }
+        let sampling = raw.sampling();
+        if let Some(s) = sampling.filter(|s| s.max_jitter_fraction > 0.0 && opts.uniformity.resample_s.is_none()) {
+            eprintln!(
+                "{name}: time stamps jitter by up to {:.3} s ({:.1} % of {} s), within the {} % allowed",
+                s.max_jitter_s,
+                100.0 * s.max_jitter_fraction,
+                s.median_dt_s,
+                100.0 * tlog::JITTER_TOLERANCE
+            );
+        }
         files.push((fdmlab_pipeline::engine::portable_path(p), text));
-        exps.push(e);
+        logs.push(LogRead { experiment, sampling, alignment });
     }
-    Ok((exps, files))
+    Ok((logs, files))
 }
 
 /// Store the input files so the run record's input hashes resolve.
@@ -281,8 +339,12 @@ fn parse_orders(s: &str) -> anyhow::Result<Vec<usize>> {
 
 fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let read = a.read.options()?;
-    let (exps, log_files) = read_logs(&a.logs, &read)?;
-    let (verif, verif_files) = read_logs(&a.verify, &read)?;
+    let (logs, log_files) = read_logs(&a.logs, &a.manifest, &read)?;
+    let (verif_logs, verif_files) = read_logs(&a.verify, &[], &read)?;
+    let exps: Vec<Experiment> = logs.iter().map(|l| l.experiment.clone()).collect();
+    let verif: Vec<Experiment> = verif_logs.iter().map(|l| l.experiment.clone()).collect();
+    let summaries: Vec<serde_json::Value> = logs.iter().chain(&verif_logs).map(LogRead::summary).collect();
+    let max_jitter = logs.iter().chain(&verif_logs).filter_map(|l| l.sampling).map(|s| s.max_jitter_fraction).fold(0.0, f64::max);
     let mut opts = IdentOptions {
         orders: parse_orders(&a.orders)?,
         inputs: a.inputs.split(',').map(|s| s.trim().to_string()).collect(),
@@ -314,7 +376,8 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         rows.push(json!({"family": m.model.family.name(), "order": m.model.order, "fit_percent": m.score.fit_percent, "rms": m.score.rms_c, "aic": m.score.aic, "model": hash.as_str()}));
         artifacts.push(Artifact { name: format!("{label}.json"), media_type: "application/json".into(), bytes });
     }
-    let mut out = json!({"rows": result.rows, "models": rows});
+    metrics.insert("max_jitter_fraction".into(), max_jitter);
+    let mut out = json!({"rows": result.rows, "models": rows, "logs": summaries});
     if !result.failures.is_empty() {
         out["failures"] = serde_json::to_value(&result.failures)?;
     }
@@ -328,7 +391,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         out["cross_validation"] = serde_json::to_value(&cv)?;
     }
     let names = |files: &[(String, String)]| files.iter().map(|(name, _)| name.clone()).collect::<Vec<_>>();
-    let params = json!({"logs": names(&log_files), "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": names(&verif_files)});
+    let params = json!({"logs": names(&log_files[..]), "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": names(&verif_files), "read": summaries});
     let record = fdmlab_pipeline::runs::record_command(&store, "thermal identify", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
     ctx.emit(&out, || {
@@ -357,6 +420,18 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         for f in &result.failures {
             s.push_str(&format!("{}-{} failed: {}\n", f.family.name(), f.order, f.reason));
+        }
+        for l in out["logs"].as_array().into_iter().flatten() {
+            let a = &l["alignment"];
+            if a.is_object() {
+                s.push_str(&format!(
+                    "{}: joined with its manifest: run 1 at {} s, slip RMS {} s (max {} s)\n",
+                    l["file"].as_str().unwrap_or(""),
+                    a["offset_s"],
+                    a["residual_rms_s"],
+                    a["max_slip_s"]
+                ));
+            }
         }
         s + &cv_text
     });
@@ -472,24 +547,33 @@ fn grid(a: GridArgs, ctx: &Ctx) -> anyhow::Result<()> {
 fn gcode(a: GcodeArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let bed = a.bed_mm;
     let g = step_gcode::StepTestGcode {
+        firmware: a.firmware.into(),
         bed_mm: bed,
         max_z_mm: a.max_z,
         max_hotend_c: a.max_hotend_c,
         park_mm: [bed[0] / 2.0, bed[1] / 2.0],
         mm_per_height_unit: a.mm_per_unit,
         min_z_mm: a.min_z,
-        hold_s: a.hold_s,
+        heat_s: a.heat_s,
+        cool_s: a.cool_s,
         start_c: a.start_c,
         report_s: 1,
     };
     let runs: Vec<_> = twin::identification_grid().into_iter().chain(twin::verification_grid()).collect();
-    let text = step_gcode::write(&g, &runs)?;
+    let program = step_gcode::write(&g, &runs)?;
     match &a.out {
         Some(p) => {
-            write_file_atomic(p, text.as_bytes())?;
-            ctx.emit(&json!({"file": p, "lines": text.lines().count()}), || format!("wrote {}", p.display()));
+            let mpath = super::pa::manifest_path(p);
+            let manifest = serde_json::to_vec_pretty(&program.manifest)?;
+            // The G-code and its manifest, both or neither.
+            write_files_atomic(&[(p.as_path(), program.text.as_bytes()), (mpath.as_path(), manifest.as_slice())])?;
+            let value = json!({"file": p, "manifest": mpath, "firmware": g.firmware.name(), "lines": program.text.lines().count(), "runs": program.manifest.runs.len()});
+            ctx.emit(&value, || format!("wrote {} ({}) and {}", p.display(), g.firmware.name(), mpath.display()));
         }
-        None => print!("{text}"),
+        None => {
+            eprintln!("note: no manifest without --out (thermal identify --manifest needs it)");
+            print!("{}", program.text);
+        }
     }
     Ok(())
 }

@@ -7,3 +7,4 @@ mod foundation;
 mod hbot;
 mod pa;
 mod thermal;
+mod thermal_firmware;

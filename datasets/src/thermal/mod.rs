@@ -6,6 +6,7 @@
 pub mod csv;
 pub mod export;
 pub mod klipper;
+pub mod manifest;
 pub mod marlin;
 pub mod model_json;
 pub mod step_gcode;
@@ -16,9 +17,27 @@ use fdmlab_models::thermal::data::Experiment;
 /// Temperature below which a log is taken to start at room temperature (°C).
 pub const COLD_START_MAX_C: f64 = 45.0;
 
-/// Largest relative deviation of a sample interval from the median for a log
-/// to count as uniformly sampled (covers timestamps printed with 3 decimals).
-pub const UNIFORM_TOLERANCE: f64 = 0.01;
+/// Largest deviation of a sample interval from the median, as a fraction of
+/// the median, for a log to count as uniformly sampled (jitter). Real logs
+/// stamp time to the millisecond and hosts wake late: a 0.1 s log whose
+/// intervals read 0.099/0.100/0.101 s is uniform. Within 10 % the samples are
+/// taken at the median period (a timing error of at most a tenth of a sample,
+/// far below a hotend's time constants); beyond it the log is refused unless
+/// resampled.
+pub const JITTER_TOLERANCE: f64 = 0.10;
+
+/// How regular a log's time stamps are (reported with every identification).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Sampling {
+    /// Median sample interval, s.
+    pub median_dt_s: f64,
+    /// Largest |interval − median|, s.
+    pub max_jitter_s: f64,
+    /// `max_jitter_s / median_dt_s`.
+    pub max_jitter_fraction: f64,
+    /// 1-based data row (line for CSV) that ends the interval with the largest jitter.
+    pub worst_row: usize,
+}
 
 /// A parsed log with its own timestamps (not necessarily uniform).
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -75,6 +94,17 @@ impl RawLog {
         d[d.len() / 2]
     }
 
+    /// Jitter of the time stamps; `None` for fewer than two samples.
+    pub fn sampling(&self) -> Option<Sampling> {
+        let median = self.median_dt_s();
+        if !median.is_finite() {
+            return None;
+        }
+        let (k, jitter) =
+            self.time_s.windows(2).map(|w| (w[1] - w[0] - median).abs()).enumerate().fold((0, 0.0), |best, (k, j)| if j > best.1 { (k, j) } else { best });
+        Some(Sampling { median_dt_s: median, max_jitter_s: jitter, max_jitter_fraction: jitter / median, worst_row: k + 2 })
+    }
+
     /// Uniformly sampled experiment. Irregular sampling is an error unless
     /// `how.resample_s` is given: then temperatures are linearly interpolated
     /// and inputs (duties, height) held from the last sample (zero-order hold,
@@ -88,12 +118,19 @@ impl RawLog {
         type Pick = Box<dyn Fn(&[f64], bool) -> Vec<f64>>;
         let pick: Pick = match how.resample_s {
             None => {
-                if let Some((k, d)) = self.time_s.windows(2).map(|w| w[1] - w[0]).enumerate().find(|(_, d)| (d - median).abs() > UNIFORM_TOLERANCE * median) {
+                // A relative margin of 1e-9 keeps intervals of exactly 10 % (in
+                // decimal) on the accepted side of binary rounding.
+                if let Some((k, d)) =
+                    self.time_s.windows(2).map(|w| w[1] - w[0]).enumerate().find(|(_, d)| (d - median).abs() > JITTER_TOLERANCE * median * (1.0 + 1e-9))
+                {
                     return Err(DatasetError::parse(
                         &self.file,
                         k + 2,
                         "time_s",
-                        format!("irregular sampling: interval {d} s differs from the median {median} s by more than 1 %; resample explicitly (e.g. --resample {median})"),
+                        format!(
+                            "irregular sampling: interval {d} s differs from the median {median} s by more than {} % (the jitter allowed); resample explicitly (e.g. --resample {median})",
+                            JITTER_TOLERANCE * 100.0
+                        ),
                     ));
                 }
                 Box::new(|v: &[f64], _| v.to_vec())
@@ -192,6 +229,77 @@ mod tests {
     }
 
     #[test]
+    fn millisecond_stamps_at_0_1_s_are_uniform() {
+        // 21,600 samples at 0.1 s stamped to the millisecond by a host that
+        // wakes one report in eight 3 ms late: intervals 0.097, 0.1 and 0.103 s
+        // (issue #11's log was refused for one 0.099 s interval).
+        let times: Vec<f64> = (0..21_600).map(|i| ((i as f64 * 0.1 + if i % 8 == 3 { 0.003 } else { 0.0 }) * 1000.0).round() / 1000.0).collect();
+        let r = raw(&times);
+        let e = r.to_experiment(&Uniformity::default()).expect("jitter within 10 %");
+        assert_eq!(e.len(), 21_600);
+        assert!((e.dt_s - 0.1).abs() < 1e-9);
+        let s = r.sampling().expect("sampling");
+        // Largest interval error: 0.1 − 0.003 → 3 ms (up to float rounding).
+        assert!((s.max_jitter_s - 0.003).abs() < 1e-9, "{s:?}");
+        assert!((s.max_jitter_fraction - 0.03).abs() < 1e-7);
+    }
+
+    #[test]
+    fn jitter_beyond_ten_percent_names_the_row() {
+        let mut times: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        times[30] += 0.11; // interval 29→30 is 1.11 s, 30→31 is 0.89 s
+        let err = raw(&times).to_experiment(&Uniformity::default()).expect_err("irregular").to_string();
+        assert!(err.starts_with("t.csv:31: time_s: irregular sampling: interval 1.11"), "{err}");
+        times[30] = 30.1; // 10 % exactly: accepted
+        assert!(raw(&times).to_experiment(&Uniformity::default()).is_ok());
+    }
+
+    proptest::proptest! {
+        /// Stamps jittered by up to ±2 % of the period and rounded to the millisecond
+        /// (period ≥ 0.2 s, so rounding adds ≤ 1 %) deviate from the median by at
+        /// most 2·(4 % + 1 %) < 10 %: always accepted, every sample kept, at the period.
+        #[test]
+        fn jitter_within_tolerance_is_accepted(period in 0.2f64..5.0, offsets in proptest::collection::vec(-0.02f64..0.02, 10..200)) {
+            let times: Vec<f64> = offsets.iter().enumerate().map(|(i, o)| ((i as f64 + o) * period * 1000.0).round() / 1000.0).collect();
+            let r = raw(&times);
+            let e = r.to_experiment(&Uniformity::default()).expect("accepted");
+            proptest::prop_assert_eq!(e.len(), times.len());
+            proptest::prop_assert!((e.dt_s - period).abs() <= 0.05 * period);
+            let s = r.sampling().expect("sampling");
+            proptest::prop_assert!(s.max_jitter_fraction < JITTER_TOLERANCE);
+        }
+
+        /// Whatever the stamps, the log is accepted exactly when the reported jitter is
+        /// within the tolerance, and a refusal names the row `sampling` reports.
+        #[test]
+        fn acceptance_matches_the_reported_jitter(period in 0.05f64..5.0, offsets in proptest::collection::vec(-0.1f64..0.1, 10..100)) {
+            let times: Vec<f64> = offsets.iter().enumerate().map(|(i, o)| (i as f64 + o) * period).collect();
+            let r = raw(&times);
+            let s = r.sampling().expect("sampling");
+            match r.to_experiment(&Uniformity::default()) {
+                Ok(_) => proptest::prop_assert!(s.max_jitter_fraction <= JITTER_TOLERANCE * (1.0 + 1e-9)),
+                Err(e) => {
+                    proptest::prop_assert!(s.max_jitter_fraction > JITTER_TOLERANCE);
+                    proptest::prop_assert!(e.to_string().contains("irregular sampling"), "{}", e);
+                }
+            }
+        }
+
+        /// One interval off by more than 10 % of the period is refused and its row named.
+        #[test]
+        fn one_irregular_interval_is_refused(period in 0.05f64..5.0, n in 10usize..200, at in 1usize..9, excess in 0.11f64..3.0) {
+            let mut times: Vec<f64> = (0..n).map(|i| i as f64 * period).collect();
+            let at = at.min(n - 2);
+            for t in &mut times[at..] {
+                *t += excess * period;
+            }
+            let err = raw(&times).to_experiment(&Uniformity::default()).expect_err("refused").to_string();
+            let expected = format!("t.csv:{}: time_s: irregular sampling", at + 1);
+            proptest::prop_assert!(err.starts_with(&expected), "{}", err);
+        }
+    }
+
+    #[test]
     fn hot_start_needs_an_ambient() {
         let mut r = raw(&[0.0, 1.0, 2.0]);
         r.temperature_c = vec![200.0, 200.0, 200.0];
@@ -255,13 +363,18 @@ impl Default for ReadOptions {
     }
 }
 
+/// Parse a log of any supported format with its own time stamps.
+pub fn parse_raw(text: &str, file: &str, opts: &ReadOptions) -> Result<RawLog, DatasetError> {
+    match opts.format.unwrap_or_else(|| LogFormat::detect(file, text)) {
+        LogFormat::Csv => csv::parse(text, file),
+        LogFormat::Marlin => marlin::parse(text, file, &opts.marlin),
+        LogFormat::Klipper => klipper::parse(text, file, &opts.klipper_heater),
+    }
+}
+
 /// Parse a log of any supported format into a uniformly sampled experiment.
 pub fn read_log(text: &str, file: &str, opts: &ReadOptions) -> Result<(Experiment, Vec<String>), DatasetError> {
-    let raw = match opts.format.unwrap_or_else(|| LogFormat::detect(file, text)) {
-        LogFormat::Csv => csv::parse(text, file)?,
-        LogFormat::Marlin => marlin::parse(text, file, &opts.marlin)?,
-        LogFormat::Klipper => klipper::parse(text, file, &opts.klipper_heater)?,
-    };
+    let raw = parse_raw(text, file, opts)?;
     let e = raw.to_experiment(&opts.uniformity)?;
     Ok((e, raw.notes))
 }

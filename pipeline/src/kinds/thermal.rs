@@ -68,6 +68,11 @@ impl Default for IdentifySpec {
 pub struct DataSpec {
     /// Path relative to the spec.
     pub log: String,
+    /// Step-test manifest (`<gcode>.json` from `thermal gcode`), relative to
+    /// the spec: joined with the log by time, it supplies the fan duty and head
+    /// height a klippy.log lacks (see docs/thermal.md).
+    #[serde(default)]
+    pub manifest: Option<String>,
 }
 
 /// `[report]`: presentation only (changing it reruns only the `report` stage).
@@ -156,6 +161,8 @@ impl ThermalSpec {
 #[derive(Debug, Clone, Serialize)]
 struct IngestParams {
     log: String,
+    /// The step-test manifest joined with the log, if any.
+    manifest: Option<String>,
 }
 
 /// `identify`: the families to fit.
@@ -176,24 +183,52 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let source = match &s.data {
         Some(d) => {
             let path = spec.input_file("data.log", &d.log)?;
-            let declared = path.clone();
-            Stage::typed("ingest", 2, IngestParams { log: d.log.clone() }, move |input, p| {
+            let mut declared = vec![path.clone()];
+            let manifest = match &d.manifest {
+                Some(rel) => {
+                    let mpath = spec.input_file("data.manifest", rel)?;
+                    // Checked now, so a bad manifest stops the spec before any stage runs.
+                    let text = std::fs::read_to_string(&mpath).map_err(|e| spec.bad_value("data.manifest", e.to_string()))?;
+                    fdmlab_datasets::thermal::manifest::parse(&text, rel).map_err(|e| spec.bad_value("data.manifest", e.to_string()))?;
+                    declared.push(mpath.clone());
+                    Some((mpath, rel.clone()))
+                }
+                None => None,
+            };
+            Stage::typed("ingest", 3, IngestParams { log: d.log.clone(), manifest: d.manifest.clone() }, move |input, p| {
+                use fdmlab_datasets::thermal as tlog;
                 let bytes = input.file(&path)?;
                 let text = String::from_utf8_lossy(&bytes);
-                let (experiment, notes) = fdmlab_datasets::thermal::read_log(&text, &p.log, &fdmlab_datasets::thermal::ReadOptions::default())?;
+                let mut raw = tlog::parse_raw(&text, &p.log, &tlog::ReadOptions::default())?;
+                let mut out = StageOutput::default();
+                if let Some((mpath, mname)) = &manifest {
+                    let mbytes = input.file(mpath)?;
+                    let m = tlog::manifest::parse(&String::from_utf8_lossy(&mbytes), mname)?;
+                    let (joined, alignment) = tlog::manifest::join(&raw, &m, mname)?;
+                    raw = joined;
+                    out = out
+                        .add_json("alignment.json", &alignment)?
+                        .metric("join_offset_s", alignment.offset_s)
+                        .metric("join_slip_rms_s", alignment.residual_rms_s);
+                }
+                let experiment = raw.to_experiment(&tlog::Uniformity::default())?;
+                if let Some(s) = raw.sampling() {
+                    out = out.add_json("sampling.json", &s)?.metric("max_jitter_fraction", s.max_jitter_fraction);
+                }
                 let log = StepLog::from(&experiment);
                 // What the reader ignored or skipped (unknown columns, unparsed
                 // lines) is shown and kept with the run, as `thermal identify` does.
-                let mut out = StageOutput::default().add_json("log.json", &log)?;
+                out = out.add_json("log.json", &log)?.add_json("experiment.json", &experiment)?;
+                let notes = &raw.notes;
                 if !notes.is_empty() {
-                    for n in &notes {
+                    for n in notes {
                         eprintln!("{}: {n}", p.log);
                     }
                     out = out.add("ingest-notes.txt", "text/plain", notes.iter().map(|n| format!("{}: {n}\n", p.log)).collect::<String>().into_bytes());
                 }
                 Ok(out)
             })?
-            .reading(vec![declared])
+            .reading(declared)
         }
         None => Stage::typed("simulate", 1, s.simulate, |input, p| {
             let log = p.plant.step_test(&p.protocol, &p.sensor, input.seed)?;

@@ -41,6 +41,69 @@ pub struct GridSpec {
     /// Export options.
     #[serde(default)]
     pub export: ExportSection,
+    /// Step-test G-code for a real printer (optional: adds the `gcode` stage).
+    #[serde(default)]
+    pub gcode: Option<GcodeSection>,
+}
+
+/// `[gcode]`: the protocol's G-code and manifest for the user's printer, in its
+/// firmware's dialect (as `thermal gcode`; see docs/thermal.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GcodeSection {
+    /// `marlin` (default), `klipper` or `reprap`.
+    pub firmware: fdmlab_datasets::pa::calibration::Firmware,
+    /// Bed X, Y, mm (the head parks over its centre).
+    pub bed_mm: [f64; 2],
+    /// Machine Z limit, mm.
+    pub max_z_mm: f64,
+    /// Hotend temperature limit, °C.
+    pub max_hotend_c: f64,
+    /// Heater on per run, s.
+    pub heat_s: f64,
+    /// Cooling per run, s.
+    pub cool_s: f64,
+    /// Start temperature of every run, °C.
+    pub start_c: f64,
+    /// mm per head-height unit.
+    pub mm_per_height_unit: f64,
+    /// Lowest Z, mm.
+    pub min_z_mm: f64,
+}
+
+impl Default for GcodeSection {
+    fn default() -> Self {
+        GcodeSection {
+            firmware: fdmlab_datasets::pa::calibration::Firmware::Marlin,
+            bed_mm: [200.0, 200.0],
+            max_z_mm: 180.0,
+            max_hotend_c: 260.0,
+            heat_s: 600.0,
+            cool_s: 900.0,
+            start_c: 40.0,
+            mm_per_height_unit: 1.0,
+            min_z_mm: 0.5,
+        }
+    }
+}
+
+impl GcodeSection {
+    /// The writer's settings.
+    fn settings(&self) -> fdmlab_datasets::thermal::step_gcode::StepTestGcode {
+        fdmlab_datasets::thermal::step_gcode::StepTestGcode {
+            firmware: self.firmware,
+            bed_mm: self.bed_mm,
+            max_z_mm: self.max_z_mm,
+            max_hotend_c: self.max_hotend_c,
+            park_mm: [self.bed_mm[0] / 2.0, self.bed_mm[1] / 2.0],
+            mm_per_height_unit: self.mm_per_height_unit,
+            min_z_mm: self.min_z_mm,
+            heat_s: self.heat_s,
+            cool_s: self.cool_s,
+            start_c: self.start_c,
+            report_s: 1,
+        }
+    }
 }
 
 /// `[identify]`.
@@ -169,7 +232,19 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let families = check(&s, spec)?;
     let title = format!("{} — hotend identification across orders, cross-validation and control", s.experiment.name);
     let ident_params = IdentParams { families, orders: s.identify.orders.clone(), horizon: s.identify.horizon };
-    Ok(vec![
+    let all_runs = || identification_grid().into_iter().chain(verification_grid()).collect::<Vec<_>>();
+    let gcode_stage = match &s.gcode {
+        Some(g) => {
+            // Refused settings stop the spec before any stage runs.
+            fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs()).map_err(|e| spec.bad_value("gcode", e.to_string()))?;
+            Some(Stage::typed("gcode", 1, g.clone(), move |_, g: &GcodeSection| {
+                let p = fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs())?;
+                StageOutput::default().add("steptest.gcode", "text/x-gcode", p.text.into_bytes()).add_json("steptest.gcode.json", &p.manifest)
+            })?)
+        }
+        None => None,
+    };
+    let mut stages = vec![
         Stage::typed("grid", 1, GridParams { twin: s.twin, protocol: s.protocol }, |input, p| {
             let ident = p.twin.grid(&identification_grid(), &p.protocol, input.seed)?;
             let verif = p.twin.grid(&verification_grid(), &p.protocol, input.seed.wrapping_add(1))?;
@@ -285,7 +360,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             StageOutput::default().add_report(&report(title, &entries, &cv, &verif, &responses, &source))
         })?
         .after(&["identify", "crossval", "grid", "control"]),
-    ])
+    ];
+    stages.extend(gcode_stage);
+    Ok(stages)
 }
 
 fn report(
