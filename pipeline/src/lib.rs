@@ -8,6 +8,7 @@
 //! Module dependencies (no cycles): `hash` ← `records` ← `store` ← `runs` ←
 //! `maintenance`; `stage` ← `kinds` ← `engine`.
 
+pub mod discrepancy;
 pub mod engine;
 pub mod error;
 pub mod hash;
