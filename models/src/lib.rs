@@ -16,5 +16,6 @@ pub mod parallel;
 pub mod regress;
 pub mod rng;
 pub mod thermal;
+pub mod turns;
 
 pub use error::ModelError;

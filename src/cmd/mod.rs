@@ -8,6 +8,8 @@ pub mod run;
 pub mod runs;
 pub mod thermal;
 pub mod values;
+pub mod turns;
+pub mod turns_bench;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
