@@ -7,9 +7,9 @@ pub mod pa;
 pub mod run;
 pub mod runs;
 pub mod thermal;
-pub mod values;
 pub mod turns;
 pub mod turns_bench;
+pub mod values;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -4,7 +4,6 @@
 use super::values::{parse_bed_mm, value_name, FirmwareArg, LogFormatArg, MethodArg, ThermalFormatArg};
 use super::Ctx;
 use anyhow::Context;
-use fdmlab_datasets::pa::calibration::Firmware;
 use fdmlab_datasets::thermal::{self as tlog, export, manifest, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
 use fdmlab_models::thermal::control::{self, LoopSetup, PlacementMethod};
 use fdmlab_models::thermal::crossval;

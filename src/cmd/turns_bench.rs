@@ -24,7 +24,7 @@ pub struct BenchArgs {
 /// Run the benchmark.
 pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let manifest = fdmlab_datasets::turns::Manifest::read(&a.corpus)?;
-    let dir = super::bench::tempdir()?;
+    let dir = super::scratch_dir()?;
     let path = dir.join("bench.gcode");
     let result = measure(&a, &manifest, &path);
     let _ = std::fs::remove_dir_all(&dir);
