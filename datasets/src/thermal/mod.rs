@@ -249,7 +249,7 @@ mod tests {
         let mut times: Vec<f64> = (0..50).map(|i| i as f64).collect();
         times[30] += 0.11; // interval 29→30 is 1.11 s, 30→31 is 0.89 s
         let err = raw(&times).to_experiment(&Uniformity::default()).expect_err("irregular").to_string();
-        assert!(err.starts_with("t.csv:31: time_s: irregular sampling: interval 1.11"), "{err}");
+        assert!(err.starts_with("t.csv:31: time_s: irregular sampling: interval 1.1"), "{err}");
         times[30] = 30.1; // 10 % exactly: accepted
         assert!(raw(&times).to_experiment(&Uniformity::default()).is_ok());
     }
