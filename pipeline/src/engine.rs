@@ -115,6 +115,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
                     files: &files,
                     artifacts: &stage.artifacts,
                     stage: &stage.name,
+                    bar: bar.as_ref(),
                 };
                 let out = (stage.run)(&input).map_err(|e| match e {
                     Error::Io { .. } | Error::Store(_) | Error::Stage { .. } => e,
