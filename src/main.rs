@@ -61,6 +61,9 @@ enum Command {
     /// Pressure advance K_A: twin grid, scores, regressor training and prediction.
     #[command(subcommand)]
     Ka(cmd::pa::KaCommand),
+    /// Turn prediction: G-code to moves and junctions, the firmware planner's knowledge, baselines.
+    #[command(subcommand)]
+    Turns(cmd::turns::TurnsCommand),
     /// Print shell completions.
     Completions {
         /// Shell to generate for.
@@ -96,6 +99,7 @@ fn main() -> ExitCode {
         Command::Gcode(c) => cmd::pa::gcode(c, &ctx),
         Command::Ka(c) => cmd::pa::ka(c, &ctx),
         Command::Export(ExportCommand::Ka(a)) => cmd::pa::export_cmd(cmd::pa::ExportCommand::Ka(a), &ctx),
+        Command::Turns(c) => cmd::turns::turns(c, &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

@@ -8,5 +8,6 @@ pub mod gcode;
 pub mod hbot;
 pub mod pa;
 pub mod thermal;
+pub mod turns;
 
 pub use error::DatasetError;

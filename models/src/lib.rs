@@ -14,5 +14,6 @@ pub mod nonfinite;
 pub mod regress;
 pub mod rng;
 pub mod thermal;
+pub mod turns;
 
 pub use error::ModelError;

@@ -6,6 +6,8 @@ pub mod pa;
 pub mod run;
 pub mod runs;
 pub mod thermal;
+pub mod turns;
+pub mod turns_bench;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -56,9 +56,59 @@ impl Default for Machine {
 impl Machine {
     /// Which of X, Y, Z a `G28` homes: the axes it names, or all when it names none.
     pub fn homed_axes(cmd: &Command) -> [bool; 3] {
-        let named = ['X', 'Y', 'Z'].map(|l| cmd.word(l).is_some());
+        Self::homed_axes_of(&cmd.words)
+    }
+
+    /// [`Machine::homed_axes`] of a command's words.
+    pub fn homed_axes_of(words: &[(char, f64)]) -> [bool; 3] {
+        let named = ['X', 'Y', 'Z'].map(|l| words.iter().any(|(w, _)| *w == l));
         let all = !named.contains(&true);
         named.map(|n| all || n)
+    }
+
+    /// Zero the homed axes (`G28`).
+    pub fn home(&mut self, axes: [bool; 3]) {
+        for (i, homed) in axes.into_iter().enumerate() {
+            if homed {
+                self.pos[i] = 0.0;
+            }
+        }
+    }
+
+    /// `G92`: set the named axes to the given values (× `scale`, 25.4 under `G20`).
+    pub fn set_position(&mut self, words: &[(char, f64)], scale: f64) {
+        for (i, l) in ['X', 'Y', 'Z', 'E'].iter().enumerate() {
+            if let Some((_, v)) = words.iter().find(|(w, v)| w == l && v.is_finite()) {
+                self.pos[i] = v * scale;
+            }
+        }
+    }
+
+    /// Take a modal feed `F` (mm/min × `scale`) from a motion command's words.
+    pub fn set_feed(&mut self, words: &[(char, f64)], scale: f64) {
+        if let Some((_, f)) = words.iter().find(|(w, f)| *w == 'F' && f.is_finite()) {
+            self.feed_mm_s = f * scale / 60.0;
+        }
+    }
+
+    /// End point `[x, y, z, e]` of a motion command's words in the current
+    /// absolute/relative modes; axes it does not name stay where they are.
+    pub fn target(&self, words: &[(char, f64)], scale: f64) -> [f64; 4] {
+        let mut to = self.pos;
+        for &(l, v) in words {
+            let i = match l {
+                'X' => 0,
+                'Y' => 1,
+                'Z' => 2,
+                'E' => 3,
+                _ => continue,
+            };
+            if v.is_finite() {
+                let absolute = if i < 3 { self.absolute_xyz } else { self.absolute_e };
+                to[i] = if absolute { v * scale } else { self.pos[i] + v * scale };
+            }
+        }
+        to
     }
 
     /// Apply one command; returns the move it makes, if any.
@@ -68,32 +118,12 @@ impl Machine {
             "G91" => self.absolute_xyz = false,
             "M82" => self.absolute_e = true,
             "M83" => self.absolute_e = false,
-            "G28" => {
-                for (i, homed) in Self::homed_axes(cmd).into_iter().enumerate() {
-                    if homed {
-                        self.pos[i] = 0.0;
-                    }
-                }
-            }
-            "G92" => {
-                for (i, l) in ['X', 'Y', 'Z', 'E'].iter().enumerate() {
-                    if let Some(v) = cmd.word(*l).filter(|v| v.is_finite()) {
-                        self.pos[i] = v;
-                    }
-                }
-            }
+            "G28" => self.home(Self::homed_axes(cmd)),
+            "G92" => self.set_position(&cmd.words, 1.0),
             _ if cmd.is_move() => {
-                if let Some(f) = cmd.word('F').filter(|f| f.is_finite()) {
-                    self.feed_mm_s = f / 60.0;
-                }
+                self.set_feed(&cmd.words, 1.0);
                 let from = self.pos;
-                let mut to = from;
-                for (i, l) in ['X', 'Y', 'Z', 'E'].iter().enumerate() {
-                    if let Some(v) = cmd.word(*l).filter(|v| v.is_finite()) {
-                        let absolute = if i < 3 { self.absolute_xyz } else { self.absolute_e };
-                        to[i] = if absolute { v } else { from[i] + v };
-                    }
-                }
+                let to = self.target(&cmd.words, 1.0);
                 self.pos = to;
                 if to != from {
                     return Some(Move { line: cmd.line, from, to, feed_mm_s: self.feed_mm_s, rapid: cmd.name.ends_with('0') });

@@ -1,11 +1,15 @@
 //! G-code reader shared by every experiment: a lexer for classic word commands
 //! (`G1 X10 E0.5 F1200 ; comment`) and Klipper extended commands
 //! (`SET_PRESSURE_ADVANCE ADVANCE=0.05`), and a modal interpreter that turns
-//! motion commands into straight [`Move`]s. Hand-written rather than the `gcode`
+//! motion commands into straight [`Move`]s, and a streaming reader of the XY
+//! moves of real slicer output ([`stream::moves`]). Hand-written rather than the `gcode`
 //! crate, which is `no_std`-first and does not read Klipper's `KEY=VALUE` commands.
 
+mod lex;
 mod machine;
+pub mod stream;
 
+pub use lex::{parse_number, Head, Lexed, LineLexer};
 pub use machine::{Machine, Move};
 
 use crate::DatasetError;
@@ -54,46 +58,20 @@ pub fn parse(text: &str, file: &str) -> Result<Vec<Command>, DatasetError> {
 
 /// Parse one line (1-based `line` for errors).
 pub fn parse_line(raw: &str, line: usize, file: &str) -> Result<Option<Command>, DatasetError> {
-    let (code, comment) = match raw.find(';') {
-        Some(i) => (&raw[..i], Some(raw[i + 1..].trim().to_string())),
-        None => (raw, None),
-    };
-    // Strip a RepRap line number `N123` and checksum `*45`.
-    let code = code.split('*').next().unwrap_or("").trim();
-    let mut tokens = code.split_whitespace().peekable();
-    if matches!(tokens.peek(), Some(t) if t.len() > 1 && t.starts_with(['N', 'n']) && t[1..].parse::<u64>().is_ok()) {
-        tokens.next();
-    }
-    let Some(head) = tokens.next() else {
+    let mut lexer = LineLexer::default();
+    let bytes = raw.as_bytes();
+    let lexed = lexer.lex(bytes, line, file)?;
+    let Some(head) = lexed.head else {
         return Ok(None);
     };
-    let name = head.to_ascii_uppercase();
-    let classic = name.len() >= 2 && name.starts_with(['G', 'M', 'T']) && name[1..].chars().all(|c| c.is_ascii_digit() || c == '.');
-    let mut cmd = Command { line, name, words: Vec::new(), args: Vec::new(), comment };
-    for tok in tokens {
-        if classic {
-            let mut chars = tok.chars();
-            let letter = chars.next().map(|c| c.to_ascii_uppercase()).unwrap_or(' ');
-            if !letter.is_ascii_alphabetic() {
-                return Err(DatasetError::parse(file, line, &cmd.name, format!("word `{tok}` does not start with a letter")));
-            }
-            let rest = chars.as_str();
-            let value = if rest.is_empty() {
-                f64::NAN // a bare flag such as `G28 X`
-            } else {
-                rest.parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite())
-                    .ok_or_else(|| DatasetError::parse(file, line, &letter.to_string(), format!("`{rest}` is not a number")))?
-            };
-            cmd.words.push((letter, value));
-        } else if let Some((k, v)) = tok.split_once('=') {
-            cmd.args.push((k.to_ascii_uppercase(), v.to_string()));
-        } else {
-            return Err(DatasetError::parse(file, line, &cmd.name, format!("argument `{tok}` is not KEY=VALUE")));
-        }
-    }
-    Ok(Some(cmd))
+    let text = |r: std::ops::Range<usize>| String::from_utf8_lossy(&bytes[r]).into_owned();
+    Ok(Some(Command {
+        line,
+        name: text(head.name).to_ascii_uppercase(),
+        words: std::mem::take(&mut lexer.words),
+        args: lexer.args.into_iter().map(|(k, v)| (text(k).to_ascii_uppercase(), text(v))).collect(),
+        comment: lexed.comment.map(text),
+    }))
 }
 
 #[cfg(test)]
