@@ -132,6 +132,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
                     files: &files,
                     artifacts: &artifacts,
                     stage: &stage.name,
+                    bar: bar.as_ref(),
                 };
                 let out = (stage.run)(&input).map_err(|e| match e {
                     Error::Io { .. } | Error::Store(_) | Error::Stage { .. } => e,

@@ -140,6 +140,8 @@ pub struct StageInput<'a> {
     pub(crate) files: &'a BTreeMap<PathBuf, Hash>,
     pub(crate) artifacts: &'a [(String, Hash)],
     pub(crate) stage: &'a str,
+    /// The engine's progress bar (on a terminal), for long stages to report on.
+    pub(crate) bar: Option<&'a indicatif::ProgressBar>,
 }
 
 impl StageInput<'_> {
@@ -174,6 +176,13 @@ impl StageInput<'_> {
             .find(|(l, _)| l == label)
             .ok_or_else(|| Error::Stage { stage: self.stage.to_string(), message: format!("artifact `{label}` was not declared as an input") })?;
         self.store.get(hash)
+    }
+    /// Show `message` next to this stage's name on the run's progress bar (a
+    /// no-op when there is no bar: piped output, `--json`, tests).
+    pub fn progress(&self, message: &str) {
+        if let Some(b) = self.bar {
+            b.set_message(format!("{}: {message}", self.stage));
+        }
     }
     /// This stage's parameters deserialised into `T`.
     pub fn params<T: DeserializeOwned>(&self) -> Result<T> {

@@ -72,6 +72,77 @@ pub fn configure_threads() -> anyhow::Result<()> {
     }
 }
 
+/// Training flags shared by every network command; unset ones take the
+/// model's defaults, and every limit is checked by [`TrainParams::check`]
+/// (the one table in `fdmlab_models::nets::params`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct TrainFlags {
+    /// Hidden layer widths, comma-separated (K_A default 64,64,32).
+    #[arg(long, value_delimiter = ',')]
+    pub hidden: Option<Vec<usize>>,
+    /// Training epochs (K_A default 500).
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// Mini-batch rows (K_A default 128).
+    #[arg(long)]
+    pub batch: Option<usize>,
+    /// Adam's initial learning rate (K_A default 0.01).
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Seed of the initial weights and the batch order.
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+}
+
+impl TrainFlags {
+    /// The flags over `defaults`, checked.
+    pub fn params(&self, defaults: fdmlab_models::nets::TrainParams) -> anyhow::Result<fdmlab_models::nets::ValidTrainParams> {
+        let mut p = defaults;
+        if let Some(h) = &self.hidden {
+            p.hidden = h.clone();
+        }
+        p.train.epochs = self.epochs.unwrap_or(p.train.epochs);
+        p.train.batch_size = self.batch.unwrap_or(p.train.batch_size);
+        p.train.learning_rate = self.lr.unwrap_or(p.train.learning_rate);
+        p.train.seed = self.seed;
+        Ok(p.check()?)
+    }
+}
+
+/// A training progress bar on stderr (only when [`Ctx::progress`]): one tick
+/// per epoch of every fit, with fold, epoch and loss in its message.
+pub struct TrainBar(Option<indicatif::ProgressBar>);
+
+impl TrainBar {
+    /// A bar over `fits × epochs` epochs named `prefix`.
+    pub fn new(ctx: &Ctx, prefix: &str, fits: usize, epochs: usize) -> TrainBar {
+        TrainBar(ctx.progress().then(|| {
+            let bar = indicatif::ProgressBar::new((fits * epochs) as u64);
+            let style = indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+            bar.set_style(style);
+            bar.set_prefix(prefix.to_string());
+            bar
+        }))
+    }
+    /// Record one epoch.
+    pub fn epoch(&mut self, p: fdmlab_models::nets::Progress) {
+        if let Some(b) = &self.0 {
+            b.set_position(((p.fold - 1) * p.epochs + p.epoch) as u64);
+            b.set_message(format!("fold {}/{} epoch {}/{} loss {:.3e}", p.fold, p.folds, p.epoch, p.epochs, p.loss));
+        }
+    }
+}
+
+impl Drop for TrainBar {
+    fn drop(&mut self) {
+        if let Some(b) = &self.0 {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// Exit code of an error: 2 when the input is at fault, else 1.
 /// Read an input file the user named: a missing or unreadable file is bad
 /// input (exit 2), and bytes that are not UTF-8 are located by line.
 pub fn read_input(path: &std::path::Path) -> anyhow::Result<Vec<u8>> {

@@ -9,8 +9,8 @@ use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
 use fdmlab_datasets::pa::model::{parse_assignments, KaModel, MODEL_SCHEMA};
 use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{GridConfig, LinePattern};
-use fdmlab_models::nets::TrainConfig;
-use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_models::nets::{TrainParams, ValidTrainParams};
+use fdmlab_models::regress::mlp::MlpModel;
 use fdmlab_pipeline::requests::CalibrationRequest;
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
@@ -229,30 +229,8 @@ pub struct TrainArgs {
     pub features: Option<Vec<String>>,
     #[arg(long, default_value_t = 5)]
     pub folds: usize,
-    #[arg(long, default_value_t = 500)]
-    pub epochs: usize,
-    /// Hidden widths of the three dense layers.
-    #[arg(long, default_value = "64,64,32")]
-    pub hidden: String,
-    #[arg(long, default_value_t = 128)]
-    pub batch: usize,
-    #[arg(long, default_value_t = 0.01)]
-    pub lr: f64,
-    #[arg(long, default_value_t = 7)]
-    pub seed: u64,
-}
-
-/// Hidden widths `a,b,c`.
-pub fn parse_hidden(s: &str) -> Result<[usize; 3], Error> {
-    let v: Vec<usize> = s
-        .split(',')
-        .map(|x| x.trim().parse::<usize>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| Error::bad_input(format!("--hidden `{s}`: expected three widths a,b,c")))?;
-    match v.as_slice() {
-        [a, b, c] if *a > 0 && *b > 0 && *c > 0 => Ok([*a, *b, *c]),
-        _ => Err(Error::bad_input(format!("--hidden `{s}`: expected three positive widths a,b,c"))),
-    }
+    #[command(flatten)]
+    pub train: super::TrainFlags,
 }
 
 fn cv_json(folds: usize, rows: usize, models: &[fdmlab_models::regress::cv::ModelScore]) -> serde_json::Value {
@@ -350,15 +328,13 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let t0 = Instant::now();
             let bytes = super::read_input(&a.data)?;
             let t = table::load(&bytes, &a.data.display().to_string(), &a.target, a.features.as_deref())?;
-            let settings = MlpSettings {
-                hidden: parse_hidden(&a.hidden)?,
-                train: TrainConfig { epochs: a.epochs, batch_size: a.batch, learning_rate: a.lr, seed: a.seed },
-            };
-            settings.train.check()?;
+            let settings = a.train.params(TrainParams::default())?;
             if a.folds < 2 || a.folds > t.design.rows() {
                 return Err(Error::bad_input(format!("--folds {} must be within 2 and the {} rows", a.folds, t.design.rows())).into());
             }
-            let (model, cv) = KaModel::train(&t, &settings, a.folds)?;
+            let mut bar = super::TrainBar::new(ctx, "ka train", a.folds + 1, settings.epochs());
+            let (model, cv) = KaModel::train(&t, &settings, a.folds, &mut |p| bar.epoch(p))?;
+            drop(bar);
             let model_json = model.to_json()?;
             let store = ctx.store()?;
             let data_hash = store.put(&bytes)?;
@@ -472,10 +448,14 @@ pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result
     let csv = grid::grid_csv(&rows);
     let features: Vec<String> = ["material", "extruder", "hotend_c", "nozzle_setting_mm", "layer_mm"].iter().map(|s| s.to_string()).collect();
     let tb = table::load(csv.as_bytes(), "grid.csv", "k_a", Some(&features))?;
-    let settings = MlpSettings { train: TrainConfig { epochs, ..TrainConfig::default() }, ..MlpSettings::default() };
+    let mut p = TrainParams::default();
+    p.train.epochs = epochs;
+    let settings = p.check()?;
     let all: Vec<usize> = (0..tb.design.rows()).collect();
     let t = Instant::now();
-    let model = MlpModel::fit(&tb.design, &all, &settings)?;
+    let mut bar = super::TrainBar::new(ctx, "bench pa", 1, epochs);
+    let model = MlpModel::fit(&tb.design, &all, &settings, &mut |p| bar.epoch(p))?;
+    drop(bar);
     let train_s = t.elapsed().as_secs_f64();
     // 40-line pattern.
     let cal = Calibration { k_start: 0.0, k_end: 0.78, k_step: 0.02, spacing_mm: 4.5, ..Calibration::default() };
@@ -521,7 +501,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
     let km = KaModel {
         schema: MODEL_SCHEMA.into(),
         encoding: tb.encoding.clone(),
-        settings: MlpSettings::default(),
+        settings: ValidTrainParams::default(),
         model: model.clone(),
         cv: vec![],
         folds: 0,

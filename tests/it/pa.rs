@@ -102,9 +102,8 @@ fn train_predict_export_on_a_small_table() {
     let bpk = sb.run(&["cat", &hash_of("model.bpk")]).stdout;
     let json: serde_json::Value = serde_json::from_slice(&sb.run(&["cat", &hash_of("model.json")]).stdout).expect("model json");
     let weights: fdmlab_models::nets::NetWeights = serde_json::from_value(json["model"]["weights"].clone()).expect("weights");
-    let widths = |i: usize| weights.layers[i].outputs;
-    let cfg = fdmlab_models::nets::KaNetConfig::new(weights.layers[0].inputs).with_hidden1(widths(0)).with_hidden2(widths(1)).with_hidden3(widths(2));
-    let net = fdmlab_models::nets::KaNet::from_burnpack(&bpk, &cfg, &burn::prelude::Device::flex()).expect("load burnpack");
+    let hidden: Vec<usize> = weights.layers[1..].iter().map(|l| l.inputs).collect();
+    let net = fdmlab_models::nets::ka::from_burnpack(&bpk, weights.layers[0].inputs, &hidden, &burn::prelude::Device::flex()).expect("load burnpack");
     assert_eq!(net.weights().expect("weights"), weights);
     // Same data, same seed: the same model artifacts (byte-identical).
     let again = sb.json(&["ka", "train", "--data", "t.csv", "--target", "k", "--epochs", "40", "--folds", "3"]);

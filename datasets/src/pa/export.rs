@@ -449,8 +449,8 @@ mod tests {
     use super::*;
     use crate::pa::model::MODEL_SCHEMA;
     use crate::pa::table::load;
-    use fdmlab_models::nets::TrainConfig;
-    use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+    use fdmlab_models::nets::TrainParams;
+    use fdmlab_models::regress::mlp::MlpModel;
 
     /// A quickly trained model on a slice of the twin's grid (direct drive, PLA/PETG).
     fn small_model() -> KaModel {
@@ -462,9 +462,11 @@ mod tests {
             .collect();
         let csv = crate::pa::grid::grid_csv(&rows);
         let t = load(csv.as_bytes(), "grid.csv", "k_a", Some(&["material".into(), "hotend_c".into(), "layer_mm".into()])).expect("grid loads");
-        let settings = MlpSettings { hidden: [16, 16, 8], train: TrainConfig { epochs: 60, ..TrainConfig::default() } };
+        let mut p = TrainParams::with_hidden(&[16, 16, 8]);
+        p.train.epochs = 60;
+        let settings = p.check().expect("valid settings");
         let all: Vec<usize> = (0..t.design.rows()).collect();
-        let model = MlpModel::fit(&t.design, &all, &settings).expect("trains");
+        let model = MlpModel::fit(&t.design, &all, &settings, &mut |_| {}).expect("trains");
         KaModel { schema: MODEL_SCHEMA.into(), support: t.support(), encoding: t.encoding, settings, model, cv: vec![], folds: 0, rows: all.len() }
     }
 

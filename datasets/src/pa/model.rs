@@ -3,8 +3,10 @@
 
 use super::table::{Encoding, FeatureTable, LevelSupport};
 use crate::DatasetError;
+use fdmlab_models::nets::params::ValidTrainParams;
+use fdmlab_models::nets::train::{in_fold, OnEpoch};
 use fdmlab_models::regress::cv::{cross_validate, CvReport, ModelScore};
-use fdmlab_models::regress::mlp::{MlpModel, MlpSettings};
+use fdmlab_models::regress::mlp::MlpModel;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -15,7 +17,7 @@ pub const MODEL_SCHEMA: &str = "fdmlab.ka-model/1";
 pub struct KaModel {
     pub schema: String,
     pub encoding: Encoding,
-    pub settings: MlpSettings,
+    pub settings: ValidTrainParams,
     pub model: MlpModel,
     /// Cross-validated scores of the network and baselines on the training data.
     pub cv: Vec<ModelScore>,
@@ -27,11 +29,12 @@ pub struct KaModel {
 
 impl KaModel {
     /// `folds`-fold cross-validation against the baselines, then the network
-    /// fitted on all rows (what `ka train` and the `pressure-advance` kind do).
-    pub fn train(t: &FeatureTable, settings: &MlpSettings, folds: usize) -> Result<(KaModel, CvReport), DatasetError> {
-        let cv = cross_validate(&t.design, folds, settings.train.seed, settings)?;
+    /// fitted on all rows (what `ka train` and the `pressure-advance` kind do);
+    /// `on_epoch` hears every epoch of the `folds + 1` fits.
+    pub fn train(t: &FeatureTable, settings: &ValidTrainParams, folds: usize, on_epoch: OnEpoch<'_>) -> Result<(KaModel, CvReport), DatasetError> {
+        let cv = cross_validate(&t.design, folds, settings.seed(), settings, 1, &mut *on_epoch)?;
         let all: Vec<usize> = (0..t.design.rows()).collect();
-        let model = MlpModel::fit(&t.design, &all, settings)?;
+        let model = MlpModel::fit(&t.design, &all, settings, &mut in_fold(folds + 1, folds + 1, on_epoch))?;
         let km = KaModel {
             schema: MODEL_SCHEMA.into(),
             encoding: t.encoding.clone(),

@@ -1,9 +1,11 @@
 //! k-fold cross-validation of the network against the baselines on the same folds.
 
 use super::baselines::{GroupMedian, Knn, Linear, KNN_K};
-use super::mlp::{MlpModel, MlpSettings};
+use super::mlp::MlpModel;
 use super::{Design, Regressor};
 use crate::metrics::{mae, max_abs_error};
+use crate::nets::params::ValidTrainParams;
+use crate::nets::train::{in_fold, OnEpoch};
 use crate::ModelError;
 use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
@@ -39,19 +41,21 @@ pub struct CvReport {
 /// Names of the compared models, in report order.
 pub const MODEL_NAMES: [&str; 4] = ["mlp", "median", "linear", "knn"];
 
-/// Train every model on k−1 folds and predict the held-out fold, for each fold.
-pub fn cross_validate(d: &Design, k: usize, seed: u64, mlp: &MlpSettings) -> Result<CvReport, ModelError> {
+/// Train every model on k−1 folds and predict the held-out fold, for each fold;
+/// `on_epoch` hears the network's epochs as fits 1..=k of `k + extra_fits`
+/// (a caller that fits once more on all rows passes `extra_fits = 1`).
+pub fn cross_validate(d: &Design, k: usize, seed: u64, mlp: &ValidTrainParams, extra_fits: usize, on_epoch: OnEpoch<'_>) -> Result<CvReport, ModelError> {
     d.check()?;
     let n = d.rows();
     let folds = kfold(n, k, seed)?;
     let mut pred = vec![vec![f64::NAN; n]; MODEL_NAMES.len()];
-    for test in &folds {
+    for (f, test) in folds.iter().enumerate() {
         let mut is_test = vec![false; n];
         for &i in test {
             is_test[i] = true;
         }
         let train: Vec<usize> = (0..n).filter(|&i| !is_test[i]).collect();
-        let net = MlpModel::fit(d, &train, mlp)?;
+        let net = MlpModel::fit(d, &train, mlp, &mut in_fold(f + 1, k + extra_fits, on_epoch))?;
         let xs: Vec<f64> = test.iter().flat_map(|&i| d.row(i).iter().copied()).collect();
         let net_pred = net.predict(&xs)?;
         let gm = GroupMedian::fit(d, &train);

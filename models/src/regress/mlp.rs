@@ -2,23 +2,12 @@
 
 use super::scaling::MinMax;
 use super::{Design, Regressor};
-use crate::nets::ka::{train, KaNet, KaNetConfig, NetWeights, TrainConfig};
+use crate::nets::params::ValidTrainParams;
+use crate::nets::train::OnEpoch;
+use crate::nets::{ka, Mlp, NetWeights};
 use crate::ModelError;
 use burn::prelude::Device;
 use serde::{Deserialize, Serialize};
-
-/// Hidden widths and optimisation settings of the regressor.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MlpSettings {
-    pub hidden: [usize; 3],
-    pub train: TrainConfig,
-}
-
-impl Default for MlpSettings {
-    fn default() -> Self {
-        MlpSettings { hidden: [64, 64, 32], train: TrainConfig::default() }
-    }
-}
 
 /// A trained network plus the scaling fitted on its training rows; serialisable
 /// (weights as f32, scaling as f64) and loadable without retraining.
@@ -34,7 +23,7 @@ pub struct MlpModel {
 
 /// The rebuilt burn module (not serialised).
 #[derive(Debug, Clone)]
-struct NetCache(std::sync::Arc<KaNet>);
+struct NetCache(std::sync::Arc<Mlp>);
 
 impl PartialEq for NetCache {
     fn eq(&self, _: &Self) -> bool {
@@ -44,7 +33,7 @@ impl PartialEq for NetCache {
 
 impl MlpModel {
     /// Fit on `rows` of the design: scale with the training rows' statistics, train, keep weights.
-    pub fn fit(d: &Design, rows: &[usize], s: &MlpSettings) -> Result<MlpModel, ModelError> {
+    pub fn fit(d: &Design, rows: &[usize], s: &ValidTrainParams, on_epoch: OnEpoch<'_>) -> Result<MlpModel, ModelError> {
         if rows.is_empty() {
             return Err(ModelError::Shape("no training rows".into()));
         }
@@ -52,10 +41,13 @@ impl MlpModel {
         let y_scale = MinMax::fit_values(rows.iter().map(|&i| d.y[i]));
         let x: Vec<f32> = rows.iter().flat_map(|&i| x_scale.scale_row(d.row(i))).map(|v| v as f32).collect();
         let y: Vec<f32> = rows.iter().map(|&i| y_scale.scale(0, d.y[i]) as f32).collect();
-        let cfg = KaNetConfig::new(d.cols()).with_hidden1(s.hidden[0]).with_hidden2(s.hidden[1]).with_hidden3(s.hidden[2]);
-        let net = train(&cfg, &s.train, &x, &y)?;
+        let net = ka::train(d.cols(), s, &x, &y, on_epoch)?;
         let weights = net.weights()?;
         Ok(MlpModel { feature_names: d.feature_names.clone(), x_scale, y_scale, weights, net: Some(NetCache(std::sync::Arc::new(net))) })
+    }
+
+    fn hidden(&self) -> Vec<usize> {
+        self.weights.layers.iter().skip(1).map(|l| l.inputs).collect()
     }
 
     /// Rebuild the burn module after deserialisation (predictions need it).
@@ -63,13 +55,14 @@ impl MlpModel {
         if self.x_scale.min.len() != self.feature_names.len() || self.weights.layers.first().map(|l| l.inputs) != Some(self.feature_names.len()) {
             return Err(ModelError::Shape("model's features, scaling and weights disagree".into()));
         }
-        self.net = Some(NetCache(std::sync::Arc::new(KaNet::from_weights(&self.weights, &Device::flex())?)));
+        let acts = ka::activations(self.hidden().len());
+        self.net = Some(NetCache(std::sync::Arc::new(Mlp::from_weights(&self.weights, &acts, &Device::flex())?)));
         Ok(self)
     }
 
     /// The network in burn's Burnpack format (scaling stays in the JSON artifact).
     pub fn to_burnpack(&self) -> Result<Vec<u8>, ModelError> {
-        KaNet::from_weights(&self.weights, &Device::flex())?.to_burnpack()
+        ka::to_burnpack(&Mlp::from_weights(&self.weights, &ka::activations(self.hidden().len()), &Device::flex())?)
     }
 
     /// Predict many feature rows (row-major, `feature_names.len()` columns) in one batch.

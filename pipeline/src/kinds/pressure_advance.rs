@@ -11,9 +11,8 @@ use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
 use fdmlab_datasets::pa::model::KaModel;
 use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{Conditions, Extruder, GridConfig, LinePattern, Material};
-use fdmlab_models::nets::TrainConfig;
+use fdmlab_models::nets::{Schedule, TrainParams, ValidTrainParams};
 use fdmlab_models::regress::cv::CvReport;
-use fdmlab_models::regress::mlp::MlpSettings;
 use fdmlab_reports::{num, LinePlot, Report, Table};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -133,11 +132,12 @@ impl Default for DatasetSpec {
     }
 }
 
-/// `[model]`; defaults are [`MlpSettings::default`] and 5 folds.
+/// `[model]`; defaults and limits are those of [`TrainParams`] (one table,
+/// `fdmlab_models::nets::params`), and 5 folds.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ModelSpec {
-    pub hidden: [usize; 3],
+    pub hidden: Vec<usize>,
     pub epochs: usize,
     pub batch: usize,
     pub learning_rate: f64,
@@ -146,8 +146,26 @@ pub struct ModelSpec {
 
 impl Default for ModelSpec {
     fn default() -> Self {
-        let MlpSettings { hidden, train } = MlpSettings::default();
+        let TrainParams { hidden, train } = TrainParams::default();
         ModelSpec { hidden, epochs: train.epochs, batch: train.batch_size, learning_rate: train.learning_rate, folds: 5 }
+    }
+}
+
+impl ModelSpec {
+    /// The checked training parameters, a violated limit named by its spec key.
+    fn train_params(&self, seed: u64, spec: &SpecFile) -> Result<ValidTrainParams> {
+        let p = TrainParams {
+            hidden: self.hidden.clone(),
+            train: Schedule { epochs: self.epochs, batch_size: self.batch, learning_rate: self.learning_rate, seed },
+        };
+        p.check().map_err(|e| {
+            let key = match &e {
+                fdmlab_models::ModelError::InvalidParameter { name, .. } if name == "batch_size" => "model.batch".to_string(),
+                fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("model.{name}"),
+                _ => "model".to_string(),
+            };
+            spec.bad_value(&key, e.to_string())
+        })
     }
 }
 
@@ -168,6 +186,17 @@ impl Default for ExportSpec {
 
 fn d_scale() -> f64 {
     10.0
+}
+
+/// Parameters of the `train` stage.
+#[derive(Debug, Clone, Serialize)]
+struct TrainStage {
+    settings: ValidTrainParams,
+    folds: usize,
+    target: String,
+    features: Option<Vec<String>>,
+    /// Upstream stage and output holding the table.
+    data: [String; 2],
 }
 
 /// Features of the twin's grid and of ingested prints.
@@ -209,17 +238,6 @@ struct TwinDatasetParams {
 #[derive(Debug, Clone, Serialize)]
 struct FileDatasetParams {
     file: String,
-}
-
-/// `train`: network settings, folds, columns and which upstream output holds the table.
-#[derive(Debug, Clone, Serialize)]
-struct TrainParams {
-    settings: MlpSettings,
-    folds: usize,
-    target: String,
-    features: Option<Vec<String>>,
-    /// (stage, output) of the table.
-    data: (String, String),
 }
 
 /// `export`: formats and the values of the inputs an export does not sweep.
@@ -289,17 +307,12 @@ impl PaSpec {
             jobs.push(PrintJob { calibration: c, extruder: self.printer.extruder(), nozzle_setting_mm: p.nozzle_setting_mm.unwrap_or(ds) });
         }
         let m = &self.model;
-        let rules: [(&str, bool, &str); 6] = [
+        m.train_params(self.experiment.seed, spec)?;
+        let rules: [(&str, bool, &str); 4] = [
             ("dataset.source", ["twin", "file", "prints"].contains(&self.dataset.source.as_str()), "must be twin, file or prints"),
             ("dataset.file", (self.dataset.source == "file") == self.dataset.file.is_some(), "give `file` exactly when source = \"file\""),
             ("dataset.source", self.dataset.source != "prints" || self.prints.len() >= 4, "`prints` needs at least 4 [[prints]] to train on"),
-            ("model.hidden", m.hidden.iter().all(|&w| (1..=1024).contains(&w)), "widths must be within 1–1024"),
             ("model.folds", (2..=20).contains(&m.folds), "must be within 2–20"),
-            (
-                "model.epochs",
-                (1..=100_000).contains(&m.epochs) && m.batch > 0 && m.learning_rate > 0.0 && m.learning_rate < 10.0,
-                "epochs 1–100000, batch > 0, learning_rate in (0, 10)",
-            ),
         ];
         for (key, ok, why) in rules {
             if !ok {
@@ -404,17 +417,20 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let data_name = if dataset == "scores" { "prints.csv" } else { "data.csv" };
 
     // 4. Train: CV against baselines, then the model on all rows.
-    let settings = MlpSettings {
-        hidden: s.model.hidden,
-        train: TrainConfig { epochs: s.model.epochs, batch_size: s.model.batch, learning_rate: s.model.learning_rate, seed: s.experiment.seed },
+    let params = TrainStage {
+        settings: s.model.train_params(s.experiment.seed, spec)?,
+        folds: s.model.folds,
+        target,
+        features,
+        data: [dataset.to_string(), data_name.to_string()],
     };
-    let train_params = TrainParams { settings, folds: s.model.folds, target, features, data: (dataset.to_string(), data_name.to_string()) };
     stages.push(
-        Stage::typed("train", 3, train_params, move |input, p| {
-            let (src, name) = &p.data;
-            let bytes = input.output(src, name)?;
-            let t = table::load(&bytes, name, &p.target, p.features.as_deref())?;
-            let (km, cv) = KaModel::train(&t, &p.settings, p.folds.min(t.design.rows()))?;
+        Stage::typed("train", 3, params, move |input, p: &TrainStage| {
+            let bytes = input.output(&p.data[0], &p.data[1])?;
+            let t = table::load(&bytes, &p.data[1], &p.target, p.features.as_deref())?;
+            let (km, cv) = KaModel::train(&t, &p.settings, p.folds.min(t.design.rows()), &mut |pr| {
+                input.progress(&format!("fold {}/{} epoch {}/{} loss {:.3e}", pr.fold, pr.folds, pr.epoch, pr.epochs, pr.loss))
+            })?;
             let bpk = km.model.to_burnpack()?;
             let mut out = StageOutput::default()
                 .add("model.json", "application/json", km.to_json()?)
