@@ -73,8 +73,9 @@ impl Default for StudyConfig {
 }
 
 impl StudyConfig {
-    /// Validate everything the study will feed to the twin.
-    pub fn check(&self) -> Result<(), ModelError> {
+    /// Validate everything the study will feed to the twin; only the checked
+    /// study hands out the plans the Taguchi and compensation steps take.
+    pub fn check(self) -> Result<ValidStudy, ModelError> {
         self.truth.check()?;
         self.initial.check()?;
         self.sensor.check()?;
@@ -109,7 +110,51 @@ impl StudyConfig {
         if self.compensation_iterations == 0 || self.compensation_iterations > 50 {
             return Err(ModelError::invalid("compensation.iterations", self.compensation_iterations, "must be 1..=50"));
         }
-        Ok(())
+        Ok(ValidStudy(self))
+    }
+}
+
+/// A checked [`StudyConfig`] (private: only [`StudyConfig::check`] makes one).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidStudy(StudyConfig);
+
+impl ValidStudy {
+    /// The hidden true machine.
+    pub fn truth(&self) -> &HbotParams {
+        &self.0.truth
+    }
+    /// The starting estimates.
+    pub fn initial(&self) -> &HbotParams {
+        &self.0.initial
+    }
+    /// The laser sensor.
+    pub fn sensor(&self) -> &LaserSensor {
+        &self.0.sensor
+    }
+    /// Screening significance threshold.
+    pub fn screening_threshold(&self) -> f64 {
+        self.0.screening_threshold
+    }
+    /// Parameters of the bridge factors (freed by the direct fit).
+    pub fn bridge_params(&self) -> Vec<Param> {
+        self.0.bridge_factors.iter().map(|f| f.param).collect()
+    }
+    /// Parameters of the cart factors.
+    pub fn cart_params(&self) -> Vec<Param> {
+        self.0.cart_factors.iter().map(|f| f.param).collect()
+    }
+    /// The Taguchi rounds' slice.
+    pub fn taguchi_plan(&self) -> TaguchiPlan {
+        TaguchiPlan {
+            bridge_factors: self.0.bridge_factors.clone(),
+            second_round: self.0.second_round,
+            shrink: self.0.shrink,
+            cart_factors: self.0.cart_factors.clone(),
+        }
+    }
+    /// The compensation trial's slice.
+    pub fn compensation_plan(&self) -> CompensationPlan {
+        CompensationPlan { speed_m_s: self.0.compensation_speed_m_s, stops_s: self.0.compensation_stops_s.clone(), iterations: self.0.compensation_iterations }
     }
 }
 
@@ -158,38 +203,24 @@ pub struct TaguchiStudy {
     pub params: HbotParams,
 }
 
-/// The Taguchi rounds' plan (a slice of [`StudyConfig`]).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The Taguchi rounds' plan: a checked slice of [`StudyConfig`] (from
+/// [`ValidStudy::taguchi_plan`] only).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TaguchiPlan {
-    pub bridge_factors: Vec<Factor>,
-    pub second_round: bool,
+    bridge_factors: Vec<Factor>,
+    second_round: bool,
     /// Level-spacing factor of the second round.
-    pub shrink: f64,
-    pub cart_factors: Vec<Factor>,
+    shrink: f64,
+    cart_factors: Vec<Factor>,
 }
 
-/// The compensation trial (a slice of [`StudyConfig`]).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The compensation trial: a checked slice of [`StudyConfig`] (from
+/// [`ValidStudy::compensation_plan`] only).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct CompensationPlan {
-    pub speed_m_s: f64,
-    pub stops_s: Vec<f64>,
-    pub iterations: usize,
-}
-
-impl StudyConfig {
-    /// The Taguchi rounds' slice.
-    pub fn taguchi_plan(&self) -> TaguchiPlan {
-        TaguchiPlan {
-            bridge_factors: self.bridge_factors.clone(),
-            second_round: self.second_round,
-            shrink: self.shrink,
-            cart_factors: self.cart_factors.clone(),
-        }
-    }
-    /// The compensation trial's slice.
-    pub fn compensation_plan(&self) -> CompensationPlan {
-        CompensationPlan { speed_m_s: self.compensation_speed_m_s, stops_s: self.compensation_stops_s.clone(), iterations: self.compensation_iterations }
-    }
+    speed_m_s: f64,
+    stops_s: Vec<f64>,
+    iterations: usize,
 }
 
 /// Run the Taguchi rounds from the initial estimates.
@@ -268,7 +299,8 @@ mod tests {
         for p in [Param::KL, Param::KR, Param::KU] {
             assert!(!sc.y.iter().any(|r| r.param == p && r.significant), "{p:?} significant");
         }
-        let t = run_taguchi(&cfg.initial, &cfg.taguchi_plan(), &data).expect("taguchi");
+        let study = cfg.clone().check().expect("the default study is valid");
+        let t = run_taguchi(&cfg.initial, &study.taguchi_plan(), &data).expect("taguchi");
         let free: Vec<Param> = cfg.bridge_factors.iter().map(|f| f.param).collect();
         let cart_free: Vec<Param> = cfg.cart_factors.iter().map(|f| f.param).collect();
         let d = run_direct(&free, &cart_free, &data, &t.params).expect("direct");
@@ -276,7 +308,7 @@ mod tests {
         // Held-out move: both identified sets beat the initial estimates, the direct fit
         // sits at the sensor's noise floor (mean |noise| ≈ 1.6 µm; < 2.5 µm).
         assert!(v.taguchi_s_mm < v.initial_s_mm && v.direct_s_mm < 0.0025, "{v:?}");
-        let c = run_compensation(&cfg.truth, &cfg.sensor, &cfg.compensation_plan(), &t.params, 7).expect("comp");
+        let c = run_compensation(&cfg.truth, &cfg.sensor, &study.compensation_plan(), &t.params, 7).expect("comp");
         // The bar: compensation reduces the MAE at least 5×.
         assert!(c.mae_after_mm * 5.0 <= c.mae_before_mm, "{} → {}", c.mae_before_mm, c.mae_after_mm);
         assert!(StudyConfig { shrink: 0.0, ..cfg.clone() }.check().is_err());

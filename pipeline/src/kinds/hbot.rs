@@ -9,7 +9,7 @@ use crate::stage::{Stage, StageOutput};
 use fdmlab_models::hbot::compensate::CompensationReport;
 use fdmlab_models::hbot::ident::{Factor, TaguchiResult};
 use fdmlab_models::hbot::sensor::LaserSensor;
-use fdmlab_models::hbot::study::{self, CompensationPlan, DirectStudy, Screening, StudyConfig, StudyData, TaguchiPlan, TaguchiStudy, Verification};
+use fdmlab_models::hbot::study::{self, CompensationPlan, DirectStudy, Screening, StudyConfig, StudyData, TaguchiPlan, TaguchiStudy, ValidStudy, Verification};
 use fdmlab_models::hbot::{HbotParams, Param, StepperDrive};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -142,7 +142,7 @@ const CHECK_KEYS: &[(&str, &str)] = &[
 
 impl HbotSpec {
     /// The validated study configuration; every error is located in the spec.
-    fn config(&self, spec: &SpecFile) -> Result<StudyConfig> {
+    fn config(&self, spec: &SpecFile) -> Result<ValidStudy> {
         let mut cfg = StudyConfig::default();
         for (name, &v) in &self.truth {
             let p = Param::from_name(name).ok_or_else(|| spec.bad_value(&format!("truth.{name}"), format!("unknown parameter (known: {})", names())))?;
@@ -194,8 +194,7 @@ impl HbotSpec {
                 _ => "experiment",
             };
             spec.bad_value(key, e.to_string())
-        })?;
-        Ok(cfg)
+        })
     }
 }
 
@@ -261,22 +260,22 @@ fn l27_csv(t: &TaguchiResult) -> String {
 /// `compensate` and `report`.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: HbotSpec = spec.parse()?;
-    let cfg = s.config(spec)?;
+    let study = s.config(spec)?;
     let title = s.report.title.clone().unwrap_or_else(|| format!("{} — H-Bot dynamic identification and compensation", s.experiment.name));
-    let (truth, initial, sensor) = (cfg.truth, cfg.initial, cfg.sensor);
+    let (truth, initial, sensor) = (*study.truth(), *study.initial(), *study.sensor());
     Ok(vec![
         Stage::typed("measure", 1, MeasureParams { truth, sensor }, |input, p| {
             let data = study::measure_protocol(&p.truth, &p.sensor, input.seed)?;
             StageOutput::default().add_json("data.json", &data)?.add_json("truth.json", &p.truth)
         })?,
-        Stage::typed("screen", 1, ScreenParams { initial, threshold: cfg.screening_threshold }, |input, p| {
+        Stage::typed("screen", 1, ScreenParams { initial, threshold: study.screening_threshold() }, |input, p| {
             let data: StudyData = input.json("measure", "data.json")?;
             let sc = study::run_screening(&p.initial, p.threshold, &data)?;
             let significant = sc.y.iter().chain(&sc.x).filter(|r| r.significant).count();
             Ok(StageOutput::default().add_json("screening.json", &sc)?.metric("significant_parameters", significant as f64))
         })?
         .after(&["measure"]),
-        Stage::typed("taguchi", 1, TaguchiParams { initial, plan: cfg.taguchi_plan() }, |input, p| {
+        Stage::typed("taguchi", 1, TaguchiParams { initial, plan: study.taguchi_plan() }, |input, p| {
             let data: StudyData = input.json("measure", "data.json")?;
             let t = study::run_taguchi(&p.initial, &p.plan, &data)?;
             let mut out =
@@ -287,31 +286,21 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             out.add_json("taguchi.json", &t)?.add_json("params.json", &t.params)
         })?
         .after(&["measure"]),
-        Stage::typed(
-            "direct",
-            1,
-            DirectParams {
-                free: cfg.bridge_factors.iter().map(|f| f.param).collect(),
-                cart_free: cfg.cart_factors.iter().map(|f| f.param).collect(),
-                initial,
-                truth,
-            },
-            |input, p| {
-                let data: StudyData = input.json("measure", "data.json")?;
-                let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
-                let d = study::run_direct(&p.free, &p.cart_free, &data, &t.params)?;
-                let v = study::verify(&p.initial, &p.truth, &data, &t.params, &d.params)?;
-                Ok(StageOutput::default()
-                    .add_json("direct.json", &d)?
-                    .add_json("params.json", &d.params)?
-                    .add_json("verification.json", &v)?
-                    .metric("direct_s_mm", d.bridge.s_mm)
-                    .metric("verify_taguchi_s_mm", v.taguchi_s_mm)
-                    .metric("verify_direct_s_mm", v.direct_s_mm))
-            },
-        )?
+        Stage::typed("direct", 1, DirectParams { free: study.bridge_params(), cart_free: study.cart_params(), initial, truth }, |input, p| {
+            let data: StudyData = input.json("measure", "data.json")?;
+            let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
+            let d = study::run_direct(&p.free, &p.cart_free, &data, &t.params)?;
+            let v = study::verify(&p.initial, &p.truth, &data, &t.params, &d.params)?;
+            Ok(StageOutput::default()
+                .add_json("direct.json", &d)?
+                .add_json("params.json", &d.params)?
+                .add_json("verification.json", &v)?
+                .metric("direct_s_mm", d.bridge.s_mm)
+                .metric("verify_taguchi_s_mm", v.taguchi_s_mm)
+                .metric("verify_direct_s_mm", v.direct_s_mm))
+        })?
         .after(&["measure", "taguchi"]),
-        Stage::typed("compensate", 1, CompensateParams { truth, sensor, plan: cfg.compensation_plan() }, |input, p| {
+        Stage::typed("compensate", 1, CompensateParams { truth, sensor, plan: study.compensation_plan() }, |input, p| {
             let t: TaguchiStudy = input.json("taguchi", "taguchi.json")?;
             let d: DirectStudy = input.json("direct", "direct.json")?;
             let ct = study::run_compensation(&p.truth, &p.sensor, &p.plan, &t.params, input.seed)?;
