@@ -43,6 +43,8 @@ enum Command {
     /// Hotend thermal identification, pole placement, simulation, grids, step-test G-code.
     #[command(subcommand)]
     Thermal(cmd::thermal::ThermalCommand),
+    /// Where a model and measured data disagree: name the missing effect, add it, show the gap shrink.
+    Discrepancy(cmd::discrepancy::DiscrepancyArgs),
     /// Export identified models, controllers and trained networks to firmware, slicer and daemon formats.
     #[command(subcommand)]
     Export(ExportCommand),
@@ -92,6 +94,7 @@ fn main() -> ExitCode {
         Command::Hbot(c) => cmd::hbot::hbot(c, &ctx),
         Command::Taguchi(c) => cmd::hbot::taguchi(c, &ctx),
         Command::Thermal(c) => cmd::thermal::run(c, &ctx),
+        Command::Discrepancy(a) => cmd::discrepancy::discrepancy(a, &ctx),
         Command::Export(ExportCommand::Thermal(a)) => cmd::thermal::export(a, &ctx),
         Command::Gcode(c) => cmd::pa::gcode(c, &ctx),
         Command::Ka(c) => cmd::pa::ka(c, &ctx),

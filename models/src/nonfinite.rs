@@ -14,6 +14,19 @@ fn back(v: Option<f64>) -> f64 {
     v.unwrap_or(f64::NAN)
 }
 
+/// A single `f64`.
+pub mod scalar {
+    use super::*;
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        out(*v).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(back(Option::<f64>::deserialize(d)?))
+    }
+}
+
 /// `Vec<f64>`.
 pub mod vec {
     use super::*;

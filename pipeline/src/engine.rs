@@ -58,6 +58,19 @@ fn check_graph(spec: &SpecFile, stages: &[Stage]) -> Result<()> {
     Ok(())
 }
 
+/// The hash of output `output` of run `run_id` (the last stage that wrote it).
+pub fn resolve_run_output(store: &Store, run_id: &str, output: &str) -> Result<crate::store::Hash> {
+    let record = runs::find(store, run_id)?;
+    record
+        .stages
+        .iter()
+        .rev()
+        .flat_map(|s| s.outputs.iter())
+        .find(|o| o.name == output)
+        .map(|o| o.hash.clone())
+        .ok_or_else(|| Error::bad_input(format!("run `{}` has no output `{output}`", record.id)))
+}
+
 /// Run the spec at `path` on `store`.
 pub fn run(store: &Store, path: &Path, opts: &RunOptions) -> Result<RunRecord> {
     let started = Instant::now();
@@ -96,7 +109,11 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
             inputs.push(InputRef { name: format!("file:{}", file_label(&spec, f)), hash: hash.clone() });
             files.insert(f.clone(), hash);
         }
-        for (label, hash) in &stage.artifacts {
+        let mut artifacts = stage.artifacts.clone();
+        for (label, run_id, output) in &stage.run_artifacts {
+            artifacts.push((label.clone(), resolve_run_output(store, run_id, output)?));
+        }
+        for (label, hash) in &artifacts {
             if !store.has(hash) {
                 return Err(Error::Stage { stage: stage.name.clone(), message: format!("artifact `{label}` ({}) is not in the store", hash.0) });
             }
@@ -113,7 +130,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
                     store,
                     upstream: &upstream,
                     files: &files,
-                    artifacts: &stage.artifacts,
+                    artifacts: &artifacts,
                     stage: &stage.name,
                 };
                 let out = (stage.run)(&input).map_err(|e| match e {

@@ -3,6 +3,7 @@
 //! `spec` parses and locates; `kinds` turns a spec into `stage`s; `engine`
 //! keys, caches and runs them on a `store`; `runs` records what happened.
 
+pub mod discrepancy;
 pub mod engine;
 pub mod error;
 pub mod kinds;

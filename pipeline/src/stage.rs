@@ -26,6 +26,10 @@ pub struct Stage {
     pub files: Vec<PathBuf>,
     /// Stored artifacts of other runs, by label and hash (part of the key).
     pub artifacts: Vec<(String, Hash)>,
+    /// Artifacts of other runs named by run id: (label, run id or prefix,
+    /// output name). The engine resolves each to its hash in the store before
+    /// keying the stage, so the key holds the hash, never the id.
+    pub run_artifacts: Vec<(String, String, String)>,
     /// The work.
     pub run: StageFn,
 }
@@ -33,7 +37,16 @@ pub struct Stage {
 impl Stage {
     /// A stage with no deps and no files.
     pub fn new(name: &str, version: u32, params: serde_json::Value, run: impl Fn(&StageInput) -> Result<StageOutput> + Send + Sync + 'static) -> Stage {
-        Stage { name: name.to_string(), version, params, deps: Vec::new(), files: Vec::new(), artifacts: Vec::new(), run: Box::new(run) }
+        Stage {
+            name: name.to_string(),
+            version,
+            params,
+            deps: Vec::new(),
+            files: Vec::new(),
+            artifacts: Vec::new(),
+            run_artifacts: Vec::new(),
+            run: Box::new(run),
+        }
     }
     /// A stage whose parameters are its own typed struct `P`: the key holds
     /// `P` as JSON and the work receives the same `P`, so no stage reads an
@@ -59,6 +72,12 @@ impl Stage {
     /// style); the stage reads it with [`StageInput::artifact`].
     pub fn using(mut self, label: &str, hash: Hash) -> Stage {
         self.artifacts.push((label.to_string(), hash));
+        self
+    }
+    /// Read output `output` of the run `run_id` (an id or unique prefix)
+    /// under `label` (builder style); resolved to a hash by the engine.
+    pub fn using_run(mut self, label: &str, run_id: &str, output: &str) -> Stage {
+        self.run_artifacts.push((label.to_string(), run_id.to_string(), output.to_string()));
         self
     }
 }

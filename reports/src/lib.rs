@@ -3,6 +3,7 @@
 //! paragraphs, tables, plots); writers turn it into bytes, so every result
 //! type only has to say which blocks describe it.
 
+pub mod discrepancy;
 mod error;
 pub mod hbot;
 mod plot;

@@ -37,6 +37,9 @@ pub struct LinePlot {
     pub y_label: String,
     /// Series drawn in order.
     pub series: Vec<Series>,
+    /// x intervals shaded behind the series (e.g. disagreement windows).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bands: Vec<(f64, f64)>,
 }
 
 const PALETTE: [RGBColor; 8] = [
@@ -53,7 +56,7 @@ const PALETTE: [RGBColor; 8] = [
 impl LinePlot {
     /// An empty plot.
     pub fn new(title: impl Into<String>, x_label: impl Into<String>, y_label: impl Into<String>) -> Self {
-        LinePlot { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: Vec::new() }
+        LinePlot { title: title.into(), x_label: x_label.into(), y_label: y_label.into(), series: Vec::new(), bands: Vec::new() }
     }
     /// Add a line series (builder style).
     pub fn line(mut self, name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
@@ -63,6 +66,11 @@ impl LinePlot {
     /// Add a line series with a marker at each point (builder style).
     pub fn line_points(mut self, name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
         self.series.push(Series { name: name.into(), points, style: SeriesStyle::LinePoints });
+        self
+    }
+    /// Shade the x intervals `bands` behind the series (builder style).
+    pub fn shaded(mut self, bands: Vec<(f64, f64)>) -> Self {
+        self.bands.extend(bands);
         self
     }
     /// Add a marker series (builder style).
@@ -109,6 +117,10 @@ impl LinePlot {
                 .build_cartesian_2d(x0..x1, y0..y1)
                 .map_err(|e| err(&e))?;
             chart.configure_mesh().x_desc(&self.x_label).y_desc(&self.y_label).draw().map_err(|e| err(&e))?;
+            let shade = RGBColor(255, 200, 120).mix(0.35).filled();
+            chart
+                .draw_series(self.bands.iter().filter(|(a, b)| a.is_finite() && b.is_finite()).map(|&(a, b)| Rectangle::new([(a, y0), (b, y1)], shade)))
+                .map_err(|e| err(&e))?;
             for (i, s) in self.series.iter().enumerate() {
                 let color = PALETTE[i % PALETTE.len()];
                 let pts = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
@@ -142,5 +154,12 @@ mod tests {
         assert_eq!(svg.matches("<circle").count(), 4, "{svg}");
         let plain = LinePlot::new("t", "x", "y").line("arx", vec![(1.0, 90.0), (2.0, 95.0)]).to_svg().expect("svg");
         assert_eq!(plain.matches("<circle").count(), 0);
+    }
+
+    #[test]
+    fn bands_are_drawn_as_filled_rectangles() {
+        let plain = LinePlot::new("r", "t", "e").line("e", vec![(0.0, 0.0), (10.0, 1.0)]).to_svg().expect("svg");
+        let shaded = LinePlot::new("r", "t", "e").line("e", vec![(0.0, 0.0), (10.0, 1.0)]).shaded(vec![(2.0, 4.0), (6.0, 7.0)]).to_svg().expect("svg");
+        assert_eq!(shaded.matches("<rect").count(), plain.matches("<rect").count() + 2);
     }
 }

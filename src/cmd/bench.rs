@@ -22,6 +22,8 @@ pub enum BenchCommand {
     Hbot(super::hbot::BenchArgs),
     /// Thermal identification (all families, orders 1..8) vs SIPPY's N4SID.
     Thermal(super::thermal::BenchArgs),
+    /// Discrepancy workflow on a long thermal log (base fit, ranking, augmentation).
+    Discrepancy(super::discrepancy::BenchArgs),
     /// Pressure advance: K_A training on the twin's grid, pattern generation, C inference.
     Pa {
         #[arg(long, default_value_t = 500)]
@@ -38,6 +40,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
         BenchCommand::Hbot(a) => super::hbot::bench(a, ctx),
         BenchCommand::Thermal(a) => super::thermal::bench(a, ctx),
+        BenchCommand::Discrepancy(a) => super::discrepancy::bench(a, ctx),
         BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
     }
 }

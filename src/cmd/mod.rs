@@ -1,6 +1,7 @@
 //! Subcommands, one module per domain, and what they share.
 
 pub mod bench;
+pub mod discrepancy;
 pub mod hbot;
 pub mod pa;
 pub mod run;

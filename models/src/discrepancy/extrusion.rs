@@ -11,11 +11,12 @@
 pub mod hidden;
 pub mod plant;
 
-use super::select::{select, Candidate, SelectOptions, Selection};
 use super::simfit;
+use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
 use crate::ModelError;
 pub use plant::ExtrusionParams;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// Commanded feed and measured outflow (mm³/s) at times `t_s`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -39,7 +40,7 @@ impl ExtrusionData {
         if n < MIN_SAMPLES {
             return Err(ModelError::Shape(format!("{n} samples; the workflow needs at least {MIN_SAMPLES}")));
         }
-        if let Some(i) = self.t_s.windows(2).position(|w| !(w[1] > w[0])) {
+        if let Some(i) = self.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)) {
             return Err(ModelError::Shape(format!("time does not increase at sample {}", i + 1)));
         }
         if self.t_s.iter().chain(&self.feed_mm3_s).chain(&self.flow_mm3_s).any(|v| !v.is_finite()) {
@@ -180,49 +181,88 @@ pub fn identify(data: &ExtrusionData, model: &ExtrusionModel, effects: &[Extrusi
     Ok(build(&fit.params))
 }
 
-/// Everything the extrusion workflow found on one data set.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ExtrusionOutcome {
-    pub base: ExtrusionModel,
-    pub augmented: ExtrusionModel,
-    pub selection: Selection,
-    pub effects: Vec<ExtrusionEffect>,
-    /// Predicted outflow (mm³/s) of the base and the augmented model.
-    pub before: Vec<f64>,
-    pub after: Vec<f64>,
-}
-
-/// Candidates of every effect for `model`.
-pub fn candidates(model: &ExtrusionModel, data: &ExtrusionData, base: &[f64]) -> Result<Vec<Candidate>, ModelError> {
-    ExtrusionEffect::ALL
-        .iter()
-        .map(|&e| {
-            Ok(Candidate {
-                name: e.name().to_string(),
-                columns: vec![candidate_column(model, data, e, base)?],
-                column_names: vec![e.parameter_name().to_string()],
-            })
-        })
-        .collect()
-}
-
-/// The whole extrusion workflow: fit the base model unless given, rank, add, re-identify.
-pub fn discover(data: &ExtrusionData, given: Option<&ExtrusionModel>, opts: &SelectOptions) -> Result<ExtrusionOutcome, ModelError> {
-    data.check()?;
-    let base = match given {
-        Some(m) => *m,
-        None => identify(data, &ExtrusionModel::base(), &[])?,
-    };
-    let before = base.predict(data)?;
-    let target: Vec<f64> = data.flow_mm3_s.iter().zip(&before).map(|(z, y)| z - y).collect();
-    let selection = select(&target, &base_columns(&base, data, &before)?, &candidates(&base, data, &before)?, opts)?;
-    let effects: Vec<ExtrusionEffect> = selection.chosen.iter().filter_map(|r| ExtrusionEffect::from_name(&r.name)).collect();
-    let mut seeded = base;
-    for (e, r) in effects.iter().zip(&selection.chosen) {
-        let c = r.coefficients.first().copied().unwrap_or(0.0);
-        e.set(&mut seeded.params, e.get(&base.params) + c * e.scale(&base, data));
+impl ExtrusionEffect {
+    /// Whether the term is in `p`.
+    pub fn is_on(self, p: &ExtrusionParams) -> bool {
+        self.get(p) != 0.0
     }
-    let augmented = if effects.is_empty() { base } else { identify(data, &seeded, &effects)? };
-    let after = augmented.predict(data)?;
-    Ok(ExtrusionOutcome { base, augmented, selection, effects, before, after })
+}
+
+/// The extrusion domain on one data set (see [`super::Domain`]).
+#[derive(Debug, Clone)]
+pub struct ExtrusionDomain {
+    data: ExtrusionData,
+}
+
+impl ExtrusionDomain {
+    /// Check the data and hold them.
+    pub fn new(data: ExtrusionData) -> Result<Self, ModelError> {
+        data.check()?;
+        Ok(Self { data })
+    }
+}
+
+impl Domain for ExtrusionDomain {
+    type Model = ExtrusionModel;
+    fn unit(&self) -> &'static str {
+        "mm³/s"
+    }
+    fn time_s(&self) -> Vec<f64> {
+        self.data.t_s.clone()
+    }
+    fn measured(&self) -> Vec<f64> {
+        self.data.flow_mm3_s.clone()
+    }
+    fn inputs(&self) -> Vec<(String, Vec<f64>)> {
+        vec![("feed_mm3_s".to_string(), self.data.feed_mm3_s.clone())]
+    }
+    fn fit_base(&self) -> Result<ExtrusionModel, ModelError> {
+        identify(&self.data, &ExtrusionModel::base(), &[])
+    }
+    fn simulate(&self, model: &ExtrusionModel) -> Vec<f64> {
+        model.predict(&self.data).unwrap_or_else(|_| vec![f64::NAN; self.data.t_s.len()])
+    }
+    fn base_columns(&self, model: &ExtrusionModel) -> Vec<Vec<f64>> {
+        let Ok(y) = model.predict(&self.data) else {
+            return Vec::new();
+        };
+        let mut cols = base_columns(model, &self.data, &y).unwrap_or_default();
+        for e in ExtrusionEffect::ALL.into_iter().filter(|e| e.is_on(&model.params)) {
+            cols.extend(candidate_column(model, &self.data, e, &y).ok());
+        }
+        cols
+    }
+    fn candidates(&self, model: &ExtrusionModel) -> Vec<Candidate> {
+        let Ok(y) = model.predict(&self.data) else {
+            return Vec::new();
+        };
+        ExtrusionEffect::ALL
+            .into_iter()
+            .filter(|e| !e.is_on(&model.params))
+            .filter_map(|e| {
+                let col = candidate_column(model, &self.data, e, &y).ok()?;
+                Some(Candidate { name: e.name().to_string(), columns: vec![col], column_names: vec![e.parameter_name().to_string()] })
+            })
+            .collect()
+    }
+    fn augment(&self, model: &ExtrusionModel, effect: &Ranked) -> Result<ExtrusionModel, ModelError> {
+        let e = ExtrusionEffect::from_name(&effect.name).ok_or_else(|| ModelError::invalid("effect", &effect.name, "not an extrusion effect"))?;
+        let mut seeded = *model;
+        let c = effect.coefficients.first().copied().unwrap_or(0.0);
+        e.set(&mut seeded.params, e.get(&model.params) + c * e.scale(model, &self.data));
+        let mut effects: Vec<ExtrusionEffect> = ExtrusionEffect::ALL.into_iter().filter(|x| x.is_on(&model.params)).collect();
+        effects.push(e);
+        identify(&self.data, &seeded, &effects)
+    }
+    fn effect_parameters(&self, model: &ExtrusionModel, effect: &str) -> BTreeMap<String, f64> {
+        let Some(e) = ExtrusionEffect::from_name(effect) else {
+            return BTreeMap::new();
+        };
+        BTreeMap::from([(e.parameter_name().to_string(), e.get(&model.params)), ("k_s".to_string(), model.params.k_s)])
+    }
+}
+
+/// The workflow on extrusion data, from `model` if given, else from the base model.
+pub fn discrepancy(data: ExtrusionData, model: Option<ExtrusionModel>, opts: &SelectOptions) -> Result<Outcome<ExtrusionModel>, ModelError> {
+    super::run(&ExtrusionDomain::new(data)?, model, opts)
 }

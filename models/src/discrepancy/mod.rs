@@ -1,7 +1,301 @@
-//! PLACEHOLDER (disc-domains): disc-core owns this file; only the domain lines below are ours.
-
-pub mod select;
+//! The discrepancy workflow: given a model and measured data, (1) locate
+//! where they disagree, (2) name the physical effect the model is missing,
+//! (3) add it and re-identify, (4) show the gap shrink.
+//!
+//! # How a domain plugs in
+//! A domain (thermal, motion, extrusion) implements [`Domain`] for a struct
+//! holding its data, and exposes one function that the command calls:
+//!
+//! ```text
+//! pub fn discrepancy(data: …, model: Option<Model>, opts: &SelectOptions) -> Result<Outcome<Model>, ModelError>
+//! //   = super::run(&TheDomain::new(data)?, model, opts)
+//! ```
+//! Its model type is plain serde data. The domain supplies:
+//! - the measured output (`measured`, in the data's unit), sample times and
+//!   the inputs to cross-correlate with the residual;
+//! - `fit_base`: the base model fitted by **simulation** (output error);
+//! - `simulate`: the model's simulated output on the data;
+//! - `base_columns`: the output sensitivities to the model's own free
+//!   parameters (refitted alongside every effect, so an effect is only named
+//!   for what the base cannot absorb by re-tuning);
+//! - `candidates`: every named effect not yet in the model as [`Candidate`]
+//!   columns, each a physical term built from the data — the output
+//!   sensitivity to the effect's parameter, obtained by simulating the model
+//!   with the effect switched on at a small magnitude;
+//! - `augment`: the model with one effect added, re-identified by simulation
+//!   (the linear coefficients of the selection are the starting guess);
+//! - `effect_parameters`: the named parameters of an effect in a model.
+//!
+//! [`run`] does the rest, identically for every domain: residual, noise band
+//! and windows, whiteness and cross-correlations, one [`select::select`]
+//! round per added effect (the ranking of the first round is the evidence
+//! table), a nonlinear-refit check for every effect (its BIC must fall after
+//! re-identification, not only in the linearisation), resolution of
+//! first-order-collinear groups by the nonlinear refit when the data can tell
+//! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
+//! else they are reported `ambiguous`; finally everything is recomputed on
+//! the augmented model. [`Report`] serialises to exactly the JSON of the
+//! command's stdout.
 
 pub mod extrusion;
+pub mod hidden;
 pub mod motion;
+pub mod select;
 pub mod simfit;
+pub mod stats;
+pub mod thermal;
+
+use crate::{nonfinite, ModelError};
+pub use select::{Candidate, Ranked, SelectOptions, Selection};
+use serde::{Deserialize, Serialize};
+use stats::{CrossCorrelation, Window};
+use std::collections::BTreeMap;
+
+/// A domain the workflow can run on (see the module documentation).
+pub trait Domain {
+    /// The domain's model: plain serde data.
+    type Model: Clone + Serialize;
+    /// Unit of the measured output (`°C`, `mm`).
+    fn unit(&self) -> &'static str;
+    /// Time of each sample, s (segments concatenated).
+    fn time_s(&self) -> Vec<f64>;
+    /// Measured output, in [`Domain::unit`].
+    fn measured(&self) -> Vec<f64>;
+    /// Inputs to cross-correlate with the residual: name and series.
+    fn inputs(&self) -> Vec<(String, Vec<f64>)>;
+    /// The base model fitted to the data by simulation.
+    fn fit_base(&self) -> Result<Self::Model, ModelError>;
+    /// Simulated output of `model` (same length as [`Domain::measured`]).
+    fn simulate(&self, model: &Self::Model) -> Vec<f64>;
+    /// Output sensitivities to the free parameters already in `model`.
+    fn base_columns(&self, model: &Self::Model) -> Vec<Vec<f64>>;
+    /// Named effects not yet in `model`, as regressor columns.
+    fn candidates(&self, model: &Self::Model) -> Vec<Candidate>;
+    /// `model` plus `effect`, re-identified by simulation.
+    fn augment(&self, model: &Self::Model, effect: &Ranked) -> Result<Self::Model, ModelError>;
+    /// Named parameters of `effect` in `model` (units in the names).
+    fn effect_parameters(&self, model: &Self::Model, effect: &str) -> BTreeMap<String, f64>;
+}
+
+/// Fit, RMS and whiteness of one model on the data.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Metrics {
+    /// Simulation fit, % (MATLAB `compare`).
+    #[serde(with = "nonfinite::scalar")]
+    pub fit_percent: f64,
+    /// RMS of the simulation residual, in the data's unit.
+    #[serde(with = "nonfinite::scalar")]
+    pub rms: f64,
+    /// Ljung–Box p-value of the residual (small: structure left).
+    #[serde(with = "nonfinite::scalar")]
+    pub whiteness_p: f64,
+}
+
+/// One effect added to the model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Effect {
+    /// Effect name (`fan_cooling`, …).
+    pub name: String,
+    /// Why it was named: `err`, `p_value`, `delta_bic` of the selection round
+    /// and `delta_bic_refit`, `rms_before`, `rms_after` of the nonlinear refit
+    /// (plus `delta_bic_vs_rival` when it was told apart from a collinear rival).
+    #[serde(with = "nonfinite::map")]
+    pub evidence: BTreeMap<String, f64>,
+    /// Its identified parameters (units in the names).
+    #[serde(with = "nonfinite::map")]
+    pub parameters: BTreeMap<String, f64>,
+}
+
+/// The command's JSON: effects added (most important first), ambiguous
+/// groups, disagreement windows of the given/base model, metrics before and after.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Report {
+    /// Effects added, in the order they were added.
+    pub effects: Vec<Effect>,
+    /// Groups of effects the data cannot tell apart.
+    pub ambiguous: Vec<Vec<String>>,
+    /// Where the residual of the starting model leaves the noise band.
+    pub windows: Vec<Window>,
+    /// The starting model (given or base).
+    pub before: Metrics,
+    /// The augmented model.
+    pub after: Metrics,
+}
+
+/// Everything a run computed: the [`Report`] plus the series and tables the
+/// document and the artifacts need.
+#[derive(Debug, Clone, Serialize)]
+pub struct Outcome<M> {
+    /// The JSON of the command.
+    pub report: Report,
+    /// Candidates scored against the starting model, best first.
+    pub ranking: Vec<Ranked>,
+    /// Unit of the output.
+    pub unit: String,
+    /// Noise standard deviation estimated from the data.
+    pub noise_sigma: f64,
+    /// Sample times, s.
+    #[serde(with = "nonfinite::vec")]
+    pub time_s: Vec<f64>,
+    /// Measured output.
+    #[serde(with = "nonfinite::vec")]
+    pub measured: Vec<f64>,
+    /// Residual of the starting model.
+    #[serde(with = "nonfinite::vec")]
+    pub residual_before: Vec<f64>,
+    /// Residual of the augmented model.
+    #[serde(with = "nonfinite::vec")]
+    pub residual_after: Vec<f64>,
+    /// Windows left after augmentation.
+    pub windows_after: Vec<Window>,
+    /// Residual–input cross-correlations, before and after.
+    pub cross_before: Vec<CrossCorrelation>,
+    /// See `cross_before`.
+    pub cross_after: Vec<CrossCorrelation>,
+    /// The starting model.
+    pub model_before: M,
+    /// The augmented model.
+    pub model_after: M,
+}
+
+fn residual(y: &[f64], y_hat: &[f64]) -> Vec<f64> {
+    y.iter().zip(y_hat).map(|(a, b)| a - b).collect()
+}
+
+fn metrics(y: &[f64], y_hat: &[f64]) -> Metrics {
+    let r = residual(y, y_hat);
+    Metrics { fit_percent: stats::fit_percent(y, y_hat), rms: stats::rms(&r), whiteness_p: stats::ljung_box(&r, 0).p_value }
+}
+
+/// `n_eff·ln(SSE₁/SSE₀) + k·ln n_eff` with `n_eff` from the new residual.
+fn delta_bic(r0: &[f64], r1: &[f64], k: usize) -> f64 {
+    let n_eff = stats::effective_samples(r1).min(r1.len() as f64);
+    let (s0, s1) = (r0.iter().map(|v| v * v).sum::<f64>(), r1.iter().map(|v| v * v).sum::<f64>());
+    n_eff * (s1.max(f64::MIN_POSITIVE) / s0.max(f64::MIN_POSITIVE)).ln() + k as f64 * n_eff.ln()
+}
+
+/// BIC difference above which one model is "very strongly" preferred (Kass & Raftery 1995, §3.2).
+pub const DECISIVE_BIC: f64 = 10.0;
+
+fn cross(domain_inputs: &[(String, Vec<f64>)], r: &[f64]) -> Vec<CrossCorrelation> {
+    domain_inputs.iter().map(|(name, u)| stats::cross_correlation(name, r, u, 20)).collect()
+}
+
+/// Run the workflow on a domain: from `model` if given, else from the base model.
+pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions) -> Result<Outcome<D::Model>, ModelError> {
+    opts.check()?;
+    let y = domain.measured();
+    let time_s = domain.time_s();
+    if y.len() != time_s.len() || y.len() < 10 {
+        return Err(ModelError::Shape(format!("need ≥ 10 samples with times, got {} samples and {} times", y.len(), time_s.len())));
+    }
+    let start = match model {
+        Some(m) => m,
+        None => domain.fit_base()?,
+    };
+    let sim0 = domain.simulate(&start);
+    if sim0.len() != y.len() || sim0.iter().any(|v| !v.is_finite()) {
+        return Err(ModelError::Numerical("the starting model's simulation is not finite on these data".into()));
+    }
+    let r0 = residual(&y, &sim0);
+    let sigma = stats::noise_sigma(&y);
+    let inputs = domain.inputs();
+
+    let mut current = start.clone();
+    let mut r_cur = r0.clone();
+    let mut effects: Vec<Effect> = Vec::new();
+    let mut ambiguous: Vec<Vec<String>> = Vec::new();
+    let mut excluded: Vec<String> = Vec::new();
+    let mut ranking: Option<Vec<Ranked>> = None;
+    let round = SelectOptions { max_effects: 1, ..*opts };
+    while effects.len() < opts.max_effects {
+        let candidates: Vec<Candidate> = domain.candidates(&current).into_iter().filter(|c| !excluded.contains(&c.name)).collect();
+        if candidates.is_empty() {
+            break;
+        }
+        let sel = select::select(&r_cur, &domain.base_columns(&current), &candidates, &round)?;
+        if ranking.is_none() {
+            ranking = Some(sel.ranking.clone());
+        }
+        let width = |name: &str| candidates.iter().find(|c| c.name == name).map_or(1, |c| c.columns.len());
+        // Re-identify with one effect; keep it only if the nonlinear refit confirms it.
+        let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> {
+            let m = domain.augment(&current, r).ok()?;
+            let sim = domain.simulate(&m);
+            if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
+                return None;
+            }
+            let r1 = residual(&y, &sim);
+            let d = delta_bic(&r_cur, &r1, width(&r.name));
+            (d < 0.0).then_some((m, r1, d))
+        };
+        let evidence = |r: &Ranked, r1: &[f64], d: f64| -> BTreeMap<String, f64> {
+            BTreeMap::from([
+                ("err".to_string(), r.err),
+                ("p_value".to_string(), r.p_value),
+                ("delta_bic".to_string(), r.delta_bic),
+                ("delta_bic_refit".to_string(), d),
+                ("rms_before".to_string(), stats::rms(&r_cur)),
+                ("rms_after".to_string(), stats::rms(r1)),
+            ])
+        };
+        if let Some(best) = sel.chosen.first() {
+            match try_add(best) {
+                Some((m, r1, d)) => {
+                    let ev = evidence(best, &r1, d);
+                    effects.push(Effect { name: best.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &best.name) });
+                    current = m;
+                    r_cur = r1;
+                }
+                None => excluded.push(best.name.clone()),
+            }
+        } else if let Some(group) = sel.ambiguous.first() {
+            // Tell the group apart by the nonlinear refit of each member.
+            let mut fits: Vec<(&Ranked, D::Model, Vec<f64>, f64)> =
+                group.iter().filter_map(|name| sel_member(&sel, name)).filter_map(|r| try_add(r).map(|(m, r1, d)| (r, m, r1, d))).collect();
+            fits.sort_by(|a, b| a.3.total_cmp(&b.3));
+            let decisive = match fits.as_slice() {
+                [only] => Some(-only.3),
+                [a, b, ..] => Some(b.3 - a.3),
+                [] => None,
+            };
+            excluded.extend(group.iter().cloned());
+            match decisive {
+                Some(gap) if gap > DECISIVE_BIC && !fits.is_empty() => {
+                    let (r, m, r1, d) = fits.swap_remove(0);
+                    let mut ev = evidence(r, &r1, d);
+                    ev.insert("delta_bic_vs_rival".into(), gap);
+                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name) });
+                    current = m;
+                    r_cur = r1;
+                }
+                Some(_) => ambiguous.push(group.clone()),
+                None => {}
+            }
+        } else {
+            break;
+        }
+    }
+    let sim1 = domain.simulate(&current);
+    let report = Report { effects, ambiguous, windows: stats::windows(&r0, sigma, &time_s), before: metrics(&y, &sim0), after: metrics(&y, &sim1) };
+    Ok(Outcome {
+        ranking: ranking.unwrap_or_default(),
+        unit: domain.unit().to_string(),
+        noise_sigma: sigma,
+        windows_after: stats::windows(&r_cur, sigma, &time_s),
+        cross_before: cross(&inputs, &r0),
+        cross_after: cross(&inputs, &r_cur),
+        residual_before: r0,
+        residual_after: r_cur,
+        time_s,
+        measured: y,
+        model_before: start,
+        model_after: current,
+        report,
+    })
+}
+
+fn sel_member<'a>(sel: &'a Selection, name: &str) -> Option<&'a Ranked> {
+    sel.ranking.iter().find(|r| r.name == name)
+}

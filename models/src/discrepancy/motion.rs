@@ -13,13 +13,14 @@
 pub mod axis;
 pub mod hidden;
 
-use super::select::{select, Candidate, SelectOptions, Selection};
 use super::simfit;
+use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
 use crate::hbot::ident::Axis;
 use crate::hbot::HbotParams;
 use crate::ModelError;
 pub use axis::{AxisPlant, MotionEffects};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// Measured positions of one axis (mm) against its command (mm), at times `t_s`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,7 +44,7 @@ impl MotionData {
         if n < MIN_SAMPLES {
             return Err(ModelError::Shape(format!("{n} samples; the workflow needs at least {MIN_SAMPLES}")));
         }
-        if let Some(i) = self.t_s.windows(2).position(|w| !(w[1] > w[0])) {
+        if let Some(i) = self.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)) {
             return Err(ModelError::Shape(format!("time does not increase at sample {}", i + 1)));
         }
         if self.t_s.iter().chain(&self.cmd_mm).chain(&self.meas_mm).any(|v| !v.is_finite()) {
@@ -265,54 +266,102 @@ fn mean_difference(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(a, b)| a - b).sum::<f64>() / n as f64
 }
 
-/// Everything the motion workflow found on one data set.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MotionOutcome {
-    /// The base model (fitted, or as given).
-    pub base: MotionModel,
-    /// The base model with the chosen effects, re-identified.
-    pub augmented: MotionModel,
-    pub selection: Selection,
-    /// Chosen effects, most important first.
-    pub effects: Vec<MotionEffect>,
-    /// Predicted readings (mm) of the base and the augmented model.
-    pub before_mm: Vec<f64>,
-    pub after_mm: Vec<f64>,
-}
-
-/// Candidates of every effect for `model` (see [`candidate_columns`]).
-pub fn candidates(model: &MotionModel, data: &MotionData, base_mm: &[f64]) -> Result<Vec<Candidate>, ModelError> {
-    MotionEffect::ALL
-        .iter()
-        .map(|&e| {
-            Ok(Candidate {
-                name: e.name().to_string(),
-                columns: candidate_columns(model, data, e, base_mm)?,
-                column_names: e.parameter_names().iter().map(|s| s.to_string()).collect(),
-            })
-        })
-        .collect()
-}
-
-/// The whole motion workflow: fit the base model unless one is given, rank the
-/// candidates on its residual, add the winners and re-identify.
-pub fn discover(data: &MotionData, given: Option<&MotionModel>, opts: &SelectOptions) -> Result<MotionOutcome, ModelError> {
-    data.check()?;
-    let base = match given {
-        Some(m) => *m,
-        None => identify(data, &MotionModel::base(data.axis), &[])?,
-    };
-    let raw = base.simulate_mm(data)?;
-    let before_mm: Vec<f64> = raw.iter().map(|y| y + base.offset_mm).collect();
-    let target: Vec<f64> = data.meas_mm.iter().zip(&before_mm).map(|(z, y)| z - y).collect();
-    let selection = select(&target, &base_columns(&base, data, &raw)?, &candidates(&base, data, &raw)?, opts)?;
-    let effects: Vec<MotionEffect> = selection.chosen.iter().filter_map(|r| MotionEffect::from_name(&r.name)).collect();
-    let mut seeded = base;
-    for (e, r) in effects.iter().zip(&selection.chosen) {
-        let v: Vec<f64> = e.get(&base.effects).iter().zip(e.scales(&base)).zip(&r.coefficients).map(|((v, s), c)| v + c * s).collect();
-        e.set(&mut seeded.effects, &v);
+impl MotionEffect {
+    /// Whether the term is in `e` (any parameter non-zero).
+    pub fn is_on(self, e: &MotionEffects) -> bool {
+        self.get(e).iter().any(|v| *v != 0.0)
     }
-    let augmented = if effects.is_empty() { base } else { identify(data, &seeded, &effects)? };
-    let after_mm = augmented.predict_mm(data)?;
-    Ok(MotionOutcome { base, augmented, selection, effects, before_mm, after_mm })
+}
+
+/// The effects present in `model`, in the library's order.
+pub fn active_effects(model: &MotionModel) -> Vec<MotionEffect> {
+    MotionEffect::ALL.into_iter().filter(|e| e.is_on(&model.effects)).collect()
+}
+
+/// The motion domain on one data set (see [`super::Domain`]).
+#[derive(Debug, Clone)]
+pub struct MotionDomain {
+    data: MotionData,
+}
+
+impl MotionDomain {
+    /// Check the data and hold them.
+    pub fn new(data: MotionData) -> Result<Self, ModelError> {
+        data.check()?;
+        Ok(Self { data })
+    }
+}
+
+impl Domain for MotionDomain {
+    type Model = MotionModel;
+    fn unit(&self) -> &'static str {
+        "mm"
+    }
+    fn time_s(&self) -> Vec<f64> {
+        self.data.t_s.clone()
+    }
+    fn measured(&self) -> Vec<f64> {
+        self.data.meas_mm.clone()
+    }
+    fn inputs(&self) -> Vec<(String, Vec<f64>)> {
+        let name = match self.data.axis {
+            Axis::X => "cmd_x_mm",
+            Axis::Y => "cmd_y_mm",
+        };
+        vec![(name.to_string(), self.data.cmd_mm.clone())]
+    }
+    fn fit_base(&self) -> Result<MotionModel, ModelError> {
+        identify(&self.data, &MotionModel::base(self.data.axis), &[])
+    }
+    fn simulate(&self, model: &MotionModel) -> Vec<f64> {
+        model.predict_mm(&self.data).unwrap_or_else(|_| vec![f64::NAN; self.data.t_s.len()])
+    }
+    fn base_columns(&self, model: &MotionModel) -> Vec<Vec<f64>> {
+        let Ok(raw) = model.simulate_mm(&self.data) else {
+            return Vec::new();
+        };
+        let mut cols = base_columns(model, &self.data, &raw).unwrap_or_default();
+        for e in active_effects(model) {
+            cols.extend(candidate_columns(model, &self.data, e, &raw).unwrap_or_default());
+        }
+        cols
+    }
+    fn candidates(&self, model: &MotionModel) -> Vec<Candidate> {
+        let Ok(raw) = model.simulate_mm(&self.data) else {
+            return Vec::new();
+        };
+        MotionEffect::ALL
+            .into_iter()
+            .filter(|e| !e.is_on(&model.effects))
+            .filter_map(|e| {
+                let columns = candidate_columns(model, &self.data, e, &raw).ok()?;
+                Some(Candidate { name: e.name().to_string(), columns, column_names: e.parameter_names().iter().map(|s| s.to_string()).collect() })
+            })
+            .collect()
+    }
+    fn augment(&self, model: &MotionModel, effect: &Ranked) -> Result<MotionModel, ModelError> {
+        let e = MotionEffect::from_name(&effect.name).ok_or_else(|| ModelError::invalid("effect", &effect.name, "not a motion effect"))?;
+        let mut seeded = *model;
+        let v: Vec<f64> = e.get(&model.effects).iter().zip(e.scales(model)).zip(&effect.coefficients).map(|((v, s), c)| v + c * s).collect();
+        e.set(&mut seeded.effects, &v);
+        let mut effects = active_effects(model);
+        effects.push(e);
+        identify(&self.data, &seeded, &effects)
+    }
+    fn effect_parameters(&self, model: &MotionModel, effect: &str) -> BTreeMap<String, f64> {
+        let Some(e) = MotionEffect::from_name(effect) else {
+            return BTreeMap::new();
+        };
+        let mut out: BTreeMap<String, f64> = e.parameter_names().iter().map(|n| n.to_string()).zip(e.get(&model.effects)).collect();
+        if e == MotionEffect::Stribeck {
+            out.insert("stribeck_v_m_s".into(), model.effects.stribeck_v_m_s);
+        }
+        out.insert("j_m_kgm2".into(), model.params.j_m_kgm2);
+        out
+    }
+}
+
+/// The workflow on motion data, from `model` if given, else from the base model.
+pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &SelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
+    super::run(&MotionDomain::new(data)?, model, opts)
 }

@@ -5,6 +5,7 @@ use crate::error::Result;
 use crate::spec::SpecFile;
 use crate::stage::Stage;
 
+pub mod discrepancy;
 pub mod hbot;
 pub mod pressure_advance;
 pub mod thermal;
@@ -14,8 +15,13 @@ pub mod thermal_grid;
 pub type Planner = fn(&SpecFile) -> Result<Vec<Stage>>;
 
 /// Every kind this build knows: name and planner.
-pub const KINDS: &[(&str, Planner)] =
-    &[("thermal-ident", thermal::plan), ("thermal-grid", thermal_grid::plan), ("hbot-taguchi", hbot::plan), ("pressure-advance", pressure_advance::plan)];
+pub const KINDS: &[(&str, Planner)] = &[
+    ("thermal-ident", thermal::plan),
+    ("thermal-grid", thermal_grid::plan),
+    ("hbot-taguchi", hbot::plan),
+    ("pressure-advance", pressure_advance::plan),
+    ("discrepancy", discrepancy::plan),
+];
 
 /// The stages of `spec`, after validating its kind-specific sections.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {

@@ -98,7 +98,8 @@ impl HiddenConfig {
 pub struct HiddenEffect {
     pub name: String,
     pub parameters: BTreeMap<String, f64>,
-    /// RMS (mm³/s) of the outflow's change when this effect alone is switched off.
+    /// RMS (mm³/s) of what the model without this effect cannot absorb of the clean
+    /// outflow by re-fitting K.
     pub contribution_rms_mm3_s: f64,
 }
 
@@ -123,12 +124,15 @@ pub struct HiddenCase {
     pub answer: HiddenAnswer,
 }
 
+/// A planned case: id, effects on with their magnitudes, noise.
+type Planned = (String, Vec<(ExtrusionEffect, f64)>, f64);
+
 /// Every case of `config` in a fixed order; case i draws from stream i of the seed.
 pub fn generate(config: &HiddenConfig) -> Result<Vec<HiddenCase>, ModelError> {
     if config.noise_sd_mm3_s.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
         return Err(ModelError::invalid("noise_sd_mm3_s", format!("{:?}", config.noise_sd_mm3_s), "must be finite and ≥ 0"));
     }
-    let mut plan: Vec<(String, Vec<(ExtrusionEffect, f64)>, f64)> = Vec::new();
+    let mut plan: Vec<Planned> = Vec::new();
     for &noise in &config.noise_sd_mm3_s {
         for k in 0..config.zero_cases {
             plan.push((format!("none-n{noise}-{k}"), Vec::new(), noise));
@@ -187,12 +191,14 @@ fn make_case(
         effect.set(&mut truth, value);
     }
     let flow = truth.simulate(t_s, feed)?;
+    let clean = ExtrusionData { t_s: t_s.to_vec(), feed_mm3_s: feed.to_vec(), flow_mm3_s: flow.clone() };
     let mut effects = Vec::new();
     for &(effect, _) in on {
         let mut without = truth;
         effect.set(&mut without, 0.0);
-        let other = without.simulate(t_s, feed)?;
-        let contribution = (flow.iter().zip(&other).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / flow.len() as f64).sqrt();
+        // What the model without this effect cannot absorb by re-fitting K.
+        let fitted = super::identify(&clean, &super::ExtrusionModel { params: without }, &[])?;
+        let contribution = crate::metrics::rms(&flow, &fitted.predict(&clean)?);
         let parameters = BTreeMap::from([(effect.parameter_name().to_string(), effect.get(&truth))]);
         effects.push(HiddenEffect { name: effect.name().to_string(), parameters, contribution_rms_mm3_s: contribution });
     }

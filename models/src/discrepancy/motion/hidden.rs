@@ -101,7 +101,8 @@ pub fn default_pairs() -> Vec<[MotionEffect; 2]> {
 pub struct HiddenEffect {
     pub name: String,
     pub parameters: BTreeMap<String, f64>,
-    /// RMS (mm) of the reading's change when this effect alone is switched off.
+    /// RMS (mm) of what the model without this effect (the others kept) cannot absorb
+    /// of the clean reading by re-fitting J_M and the offset.
     pub contribution_rms_mm: f64,
 }
 
@@ -146,12 +147,15 @@ fn switch_on(e: &mut MotionEffects, effect: MotionEffect, magnitude: f64, belt_s
     }
 }
 
+/// A planned case: id, effects on with their magnitudes, noise.
+type Planned = (String, Vec<(MotionEffect, f64)>, f64);
+
 /// Every case of `config`, in a fixed order; case i draws from stream i of the seed.
 pub fn generate(config: &HiddenConfig) -> Result<Vec<HiddenCase>, ModelError> {
     if config.noise_sd_mm.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
         return Err(ModelError::invalid("noise_sd_mm", format!("{:?}", config.noise_sd_mm), "must be finite and ≥ 0"));
     }
-    let mut plan: Vec<(String, Vec<(MotionEffect, f64)>, f64)> = Vec::new();
+    let mut plan: Vec<Planned> = Vec::new();
     for &noise in &config.noise_sd_mm {
         for k in 0..config.zero_cases {
             plan.push((format!("none-n{}-{k}", noise_tag(noise)), Vec::new(), noise));
@@ -202,17 +206,16 @@ fn make_case(
         plant.simulate(t_s, &cmd, 0.5 * plant.default_step_s())
     };
     let true_m = positions(&truth)?;
+    let clean = MotionData { axis: config.axis, t_s: t_s.to_vec(), cmd_mm: cmd_mm.to_vec(), meas_mm: true_m.iter().map(|y| y * 1e3).collect() };
     let mut effects = Vec::new();
     for &(effect, _) in on {
         let mut without = truth;
         effect.set(&mut without.effects, &vec![0.0; effect.parameter_names().len()]);
-        if effect == MotionEffect::Stribeck {
-            without.effects.stribeck_v_m_s = truth.effects.stribeck_v_m_s;
-        }
-        let other = positions(&without)?;
-        let contribution = (true_m.iter().zip(&other).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / true_m.len() as f64).sqrt() * 1e3;
-        let mut parameters: BTreeMap<String, f64> =
-            effect.parameter_names().iter().map(|n| (n.to_string(), 0.0)).zip(effect.get(&truth.effects)).map(|((n, _), v)| (n, v)).collect();
+        // What the model without this effect cannot absorb by re-fitting J_M (and the offset).
+        let fitted = super::identify(&clean, &without, &[])?;
+        let other = fitted.predict_mm(&clean)?;
+        let contribution = crate::metrics::rms(&clean.meas_mm, &other);
+        let mut parameters: BTreeMap<String, f64> = effect.parameter_names().iter().map(|n| n.to_string()).zip(effect.get(&truth.effects)).collect();
         if effect == MotionEffect::Stribeck {
             parameters.insert("stribeck_v_m_s".into(), truth.effects.stribeck_v_m_s);
         }

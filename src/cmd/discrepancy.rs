@@ -1,0 +1,313 @@
+//! `fdmlab discrepancy …`: name the effect a model is missing, add it, show
+//! the gap shrink; `fdmlab discrepancy hidden` writes hidden-effect data;
+//! `fdmlab bench discrepancy` times the whole workflow.
+
+use super::Ctx;
+use anyhow::Context;
+use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
+use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::thermal::twin::Twin;
+use fdmlab_pipeline::discrepancy::{self as disc, DomainName, ReadSettings};
+use fdmlab_pipeline::stage::{Artifact, InputRef};
+use fdmlab_pipeline::store::write_files_atomic;
+use fdmlab_pipeline::{Error, Hash};
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The domain of a run.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum Domain {
+    /// Hotend temperature (heat balance).
+    Thermal,
+    /// H-Bot axis position.
+    Motion,
+    /// Extruder flow.
+    Extrusion,
+}
+
+impl From<Domain> for DomainName {
+    fn from(d: Domain) -> Self {
+        match d {
+            Domain::Thermal => DomainName::Thermal,
+            Domain::Motion => DomainName::Motion,
+            Domain::Extrusion => DomainName::Extrusion,
+        }
+    }
+}
+
+/// `fdmlab discrepancy`
+#[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct DiscrepancyArgs {
+    #[command(subcommand)]
+    sub: Option<Sub>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+/// Subcommands of `fdmlab discrepancy`.
+#[derive(clap::Subcommand)]
+enum Sub {
+    /// Write hidden-effect data (zero, one or two effects on) and, apart, the answers.
+    Hidden(HiddenArgs),
+}
+
+/// The workflow's arguments.
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Domain.
+    #[arg(long, value_enum)]
+    domain: Option<Domain>,
+    /// Measured data (thermal: log CSV, Marlin or Klipper log); repeat to pool several logs.
+    #[arg(long, num_args = 1..)]
+    data: Vec<PathBuf>,
+    /// Starting model: a JSON file, a run id (its model.json) or an artifact hash/prefix.
+    #[arg(long)]
+    model: Option<String>,
+    /// Write the report (Markdown, HTML, SVG, LaTeX tables) to this folder.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Most effects to add.
+    #[arg(long = "max-effects", default_value_t = SelectOptions::default().max_effects)]
+    max_effects: usize,
+    /// Family-wise significance level of each selection step.
+    #[arg(long, default_value_t = SelectOptions::default().alpha)]
+    alpha: f64,
+    /// Correlation above which two effects are reported ambiguous.
+    #[arg(long, default_value_t = SelectOptions::default().collinearity)]
+    collinearity: f64,
+    /// Log format: csv, marlin or klipper (default: by extension/content).
+    #[arg(long)]
+    format: Option<String>,
+    /// Auto-report interval of bare Marlin logs, s.
+    #[arg(long)]
+    interval: Option<f64>,
+    /// Full scale of Marlin's `@:` heater power.
+    #[arg(long = "pwm-max")]
+    pwm_max: Option<f64>,
+    /// Resample irregular logs to this period, s.
+    #[arg(long, value_name = "DT_S")]
+    resample: Option<f64>,
+    /// Room temperature for logs that start hot, °C.
+    #[arg(long = "ambient-c")]
+    ambient_c: Option<f64>,
+}
+
+/// `fdmlab discrepancy hidden`
+#[derive(clap::Args)]
+struct HiddenArgs {
+    /// Domain.
+    #[arg(long, value_enum)]
+    domain: Domain,
+    /// Output folder (data/*.csv, answers.json, manifest.json).
+    #[arg(long)]
+    out: PathBuf,
+    /// Master seed.
+    #[arg(long, default_value_t = HiddenOptions::default().seed)]
+    seed: u64,
+    /// Samples per log.
+    #[arg(long, default_value_t = HiddenOptions::default().samples)]
+    samples: usize,
+    /// Seeds per (effect, magnitude, noise) cell.
+    #[arg(long, default_value_t = HiddenOptions::default().seeds)]
+    seeds: usize,
+    /// Effect-free logs per noise level.
+    #[arg(long = "null-cases", default_value_t = HiddenOptions::default().null_cases)]
+    null_cases: usize,
+}
+
+fn bad(msg: impl Into<String>) -> anyhow::Error {
+    Error::bad_input(msg).into()
+}
+
+/// Dispatch.
+pub fn discrepancy(a: DiscrepancyArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    match a.sub {
+        Some(Sub::Hidden(h)) => hidden_cmd(h, ctx),
+        None => run(a.run, ctx),
+    }
+}
+
+/// The starting model's bytes and name: a file, a run's `model.json`, or a stored artifact.
+fn load_model(arg: &str, ctx: &Ctx) -> anyhow::Result<(Vec<u8>, String, Option<Hash>)> {
+    if Path::new(arg).is_file() {
+        return Ok((super::read_input(Path::new(arg))?, arg.to_string(), None));
+    }
+    let store = ctx.store()?;
+    if fdmlab_pipeline::runs::find_opt(&store, arg)?.is_some() {
+        let hash = fdmlab_pipeline::engine::resolve_run_output(&store, arg, "model.json")?;
+        return Ok((store.get(&hash)?, format!("run {arg} model.json"), Some(hash)));
+    }
+    let hash = store.resolve(arg).map_err(|_| bad(format!("--model `{arg}` is neither a file, a run id nor a stored artifact")))?;
+    Ok((store.get(&hash)?, hash.as_str().to_string(), Some(hash)))
+}
+
+fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let domain: DomainName = a.domain.ok_or_else(|| bad("--domain is required (thermal, motion or extrusion)"))?.into();
+    if a.data.is_empty() {
+        return Err(bad("--data FILE is required"));
+    }
+    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity };
+    opts.check().map_err(|e| bad(e.to_string()))?;
+    let read = ReadSettings { format: a.format, interval_s: a.interval, pwm_max: a.pwm_max, resample_s: a.resample, ambient_c: a.ambient_c, heater: None };
+    let bytes: Vec<Vec<u8>> = a.data.iter().map(|p| super::read_input(p)).collect::<anyhow::Result<_>>()?;
+    let names: Vec<String> = a.data.iter().map(|p| p.display().to_string()).collect();
+    let files: Vec<(&[u8], &str)> = bytes.iter().zip(&names).map(|(b, n)| (b.as_slice(), n.as_str())).collect();
+    let file = names.join(", ");
+    let model = a.model.as_deref().map(|m| load_model(m, ctx)).transpose()?;
+    let t = Instant::now();
+    let out = disc::run(domain, &files, model.as_ref().map(|(b, n, _)| (b.as_slice(), n.as_str())), &read, &opts)?;
+    let wall = t.elapsed().as_secs_f64();
+    for n in &out.notes {
+        eprintln!("{n}");
+    }
+    let rendered = out.document.render().context("rendering the report")?;
+    if let Some(dir) = &a.report {
+        let paths: Vec<PathBuf> = rendered.iter().map(|f| dir.join(&f.name)).collect();
+        let files: Vec<(&Path, &[u8])> = paths.iter().zip(&rendered).map(|(p, f)| (p.as_path(), f.bytes.as_slice())).collect();
+        write_files_atomic(&files)?;
+    }
+    let store = ctx.store()?;
+    let mut inputs: Vec<InputRef> =
+        files.iter().map(|(b, n)| Ok(InputRef { name: format!("file:{n}"), hash: store.put(b)? })).collect::<anyhow::Result<_>>()?;
+    if let Some((b, _, h)) = &model {
+        inputs.push(InputRef { name: "model".into(), hash: h.clone().map_or_else(|| store.put(b), Ok)? });
+    }
+    let r = &out.report;
+    let mut artifacts = vec![
+        Artifact { name: "report.json".into(), media_type: "application/json".into(), bytes: serde_json::to_vec_pretty(r)? },
+        Artifact { name: "outcome.json".into(), media_type: "application/json".into(), bytes: out.outcome_json.clone() },
+        Artifact { name: "model.json".into(), media_type: "application/json".into(), bytes: out.model_json.clone() },
+    ];
+    artifacts.extend(rendered.into_iter().map(|f| Artifact { name: f.name, media_type: f.media_type.into(), bytes: f.bytes }));
+    let metrics = BTreeMap::from([
+        ("effects".to_string(), r.effects.len() as f64),
+        ("before.rms".to_string(), r.before.rms),
+        ("after.rms".to_string(), r.after.rms),
+        ("before.fit_percent".to_string(), r.before.fit_percent),
+        ("after.fit_percent".to_string(), r.after.fit_percent),
+    ]);
+    let params = json!({"domain": domain.name(), "data": names, "model": a.model, "select": opts, "read": read});
+    let record = fdmlab_pipeline::runs::record_command(&store, "discrepancy", params, inputs, artifacts, metrics, wall)?;
+    eprintln!("run {}", record.id);
+    let value = serde_json::to_value(r)?;
+    ctx.emit(&value, || {
+        let mut s = format!("{} on {file}: {} window(s) where the model leaves the noise band\n", domain.name(), r.windows.len());
+        if r.effects.is_empty() {
+            s.push_str("no significant missing effect\n");
+        }
+        for (i, e) in r.effects.iter().enumerate() {
+            let params: Vec<String> = e.parameters.iter().map(|(k, v)| format!("{k} = {v:.4e}")).collect();
+            s.push_str(&format!("{}. {}  ({})\n", i + 1, e.name, params.join(", ")));
+        }
+        for g in &r.ambiguous {
+            s.push_str(&format!("ambiguous: {}\n", g.join(" / ")));
+        }
+        s.push_str(&format!(
+            "before: fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\nafter:  fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\n",
+            r.before.fit_percent, r.before.rms, r.before.whiteness_p, r.after.fit_percent, r.after.rms, r.after.whiteness_p
+        ));
+        s
+    });
+    Ok(())
+}
+
+fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let domain: DomainName = h.domain.into();
+    match domain {
+        DomainName::Motion => return hidden_motion(&h, ctx),
+        DomainName::Extrusion => return hidden_extrusion(&h, ctx),
+        DomainName::Thermal => {}
+    }
+    let opts = HiddenOptions { seed: h.seed, samples: h.samples, seeds: h.seeds, null_cases: h.null_cases, ..Default::default() };
+    let twin = Twin::default();
+    let cases = hidden::generate(&twin, &opts).map_err(|e| bad(e.to_string()))?;
+    let mut files: Vec<(PathBuf, Vec<u8>)> =
+        cases.iter().map(|c| (h.out.join("data").join(format!("{}.csv", c.answer.case)), fdmlab_datasets::thermal::csv::write(&c.data).into_bytes())).collect();
+    let answers: Vec<&hidden::Answer> = cases.iter().map(|c| &c.answer).collect();
+    files.push((h.out.join("answers.json"), serde_json::to_vec_pretty(&answers)?));
+    let manifest = json!({"domain": domain.name(), "generator": hidden::GENERATOR, "seed": opts.seed, "options": opts, "twin": twin, "cases": cases.len()});
+    files.push((h.out.join("manifest.json"), serde_json::to_vec_pretty(&manifest)?));
+    let refs: Vec<(&Path, &[u8])> = files.iter().map(|(p, b)| (p.as_path(), b.as_slice())).collect();
+    write_files_atomic(&refs)?;
+    let value = json!({"out": h.out.display().to_string(), "cases": cases.len(), "seed": opts.seed, "generator": hidden::GENERATOR});
+    ctx.emit(&value, || format!("{} cases in {} (answers in answers.json, seed {})\n", cases.len(), h.out.display(), opts.seed));
+    Ok(())
+}
+
+/// Write a motion or extrusion hidden-effect set (`cases/*.csv` + `answers.json`) and report it.
+fn write_hidden(out: &Path, domain: &str, generator: &str, seed: u64, files: Vec<(String, Vec<u8>)>, ctx: &Ctx) -> anyhow::Result<()> {
+    let cases = files.len().saturating_sub(1);
+    let paths: Vec<(PathBuf, Vec<u8>)> = files.into_iter().map(|(name, bytes)| (out.join(name), bytes)).collect();
+    let refs: Vec<(&Path, &[u8])> = paths.iter().map(|(p, b)| (p.as_path(), b.as_slice())).collect();
+    write_files_atomic(&refs)?;
+    let value = json!({"out": out.display().to_string(), "domain": domain, "cases": cases, "seed": seed, "generator": generator});
+    ctx.emit(&value, || format!("{cases} {domain} cases in {} (answers in answers.json, seed {seed})\n", out.display()));
+    Ok(())
+}
+
+/// `fdmlab discrepancy hidden --domain motion`: the full set of
+/// `models::discrepancy::motion::hidden::HiddenConfig::full` (`--seeds` replicates per cell,
+/// `--null-cases` effect-free cases per noise level).
+fn hidden_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::motion::hidden as mh;
+    let config = mh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..mh::HiddenConfig::full(h.seed) };
+    let cases = mh::generate(&config).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::motion::hidden_files(&config, &cases)?;
+    write_hidden(&h.out, "motion", mh::GENERATOR, h.seed, files, ctx)
+}
+
+/// `fdmlab discrepancy hidden --domain extrusion`: as [`hidden_motion`] for
+/// `models::discrepancy::extrusion::hidden::HiddenConfig::full`.
+fn hidden_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::extrusion::hidden as eh;
+    let config = eh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..eh::HiddenConfig::full(h.seed) };
+    let cases = eh::generate(&config).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::extrusion::hidden_files(&config, &cases)?;
+    write_hidden(&h.out, "extrusion", eh::GENERATOR, h.seed, files, ctx)
+}
+
+/// `fdmlab bench discrepancy`
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Samples in the log.
+    #[arg(long, default_value_t = 20_000)]
+    samples: usize,
+    /// Repetitions (the best is reported).
+    #[arg(long, default_value_t = 5)]
+    repeat: u32,
+}
+
+/// The whole workflow (base fit, ranking, augmentation, everything
+/// recomputed) on a long twin log with the fan and near-bed loss and the
+/// thermistor lag on, against the heater-only base.
+pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let twin = Twin::default();
+    let log = twin.random_log(a.samples.max(100), 1.0, 1)?;
+    let mut best = f64::INFINITY;
+    let mut last = None;
+    for _ in 0..a.repeat.max(1) {
+        let t = Instant::now();
+        let o = fdmlab_models::discrepancy::thermal::discrepancy(vec![log.clone()], None, &SelectOptions::default())?;
+        best = best.min(t.elapsed().as_secs_f64());
+        last = Some(o.report);
+    }
+    let r = last.ok_or_else(|| anyhow::anyhow!("no repetition ran"))?;
+    let names: Vec<&str> = r.effects.iter().map(|e| e.name.as_str()).collect();
+    let value =
+        json!({"samples": log.len(), "seconds": best, "effects": names, "rms_before": r.before.rms, "rms_after": r.after.rms, "repeat": a.repeat.max(1)});
+    ctx.emit(&value, || {
+        format!(
+            "discrepancy workflow on {} samples: {:.3} s (best of {}); effects {:?}; RMS {:.3} → {:.3} °C\n",
+            log.len(),
+            best,
+            a.repeat.max(1),
+            names,
+            r.before.rms,
+            r.after.rms
+        )
+    });
+    Ok(())
+}
