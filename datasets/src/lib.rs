@@ -3,6 +3,7 @@
 //! Parsers report the file, line/row and field of bad input.
 
 pub mod csv;
+pub mod discrepancy;
 pub mod error;
 pub mod gcode;
 pub mod hbot;

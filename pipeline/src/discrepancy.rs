@@ -150,10 +150,49 @@ pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &st
             let outcome = discrepancy::thermal::discrepancy(segments, start, opts)?;
             finish(domain, &label, outcome, notes)
         }
-        DomainName::Motion | DomainName::Extrusion => {
-            Err(Error::bad_input(format!("the {} domain of the discrepancy workflow is not built in this version", domain.name())))
+        DomainName::Motion => {
+            let (bytes, file) = single_file(domain, data)?;
+            let measured = fdmlab_datasets::discrepancy::motion::parse(utf8(bytes, file)?, file)?;
+            let start =
+                model.map(|(b, n)| json_model::<discrepancy::motion::MotionModel>(b, n, "a motion model (axis, params, effects, offset_mm)")).transpose()?;
+            if let Some(m) = &start {
+                if m.axis != measured.axis {
+                    return Err(Error::bad_input(format!("the model is for the {:?} axis but {file} measures {:?}", m.axis, measured.axis)));
+                }
+            }
+            let outcome = discrepancy::motion::discrepancy(measured, start, opts)?;
+            finish(domain, &label, outcome, Vec::new())
+        }
+        DomainName::Extrusion => {
+            let (bytes, file) = single_file(domain, data)?;
+            let measured = fdmlab_datasets::discrepancy::extrusion::parse(utf8(bytes, file)?, file)?;
+            let start = model
+                .map(|(b, n)| json_model::<discrepancy::extrusion::ExtrusionModel>(b, n, "an extrusion model ({\"params\": {k_s, k2_s2_per_mm3, slip_per_s}})"))
+                .transpose()?;
+            let outcome = discrepancy::extrusion::discrepancy(measured, start, opts)?;
+            finish(domain, &label, outcome, Vec::new())
         }
     }
+}
+
+/// The one data file of the motion and extrusion domains (a measurement of one axis
+/// or one extruder; segments are not pooled there).
+fn single_file<'a>(domain: DomainName, data: &[(&'a [u8], &'a str)]) -> Result<(&'a [u8], &'a str)> {
+    match data {
+        [one] => Ok(*one),
+        _ => Err(Error::bad_input(format!("the {} domain reads exactly one data file, got {}", domain.name(), data.len()))),
+    }
+}
+
+/// A domain's own model JSON (what a discrepancy run stores as `model.json`).
+fn json_model<M: serde::de::DeserializeOwned>(bytes: &[u8], name: &str, what: &str) -> Result<M> {
+    serde_json::from_slice::<M>(bytes).map_err(|e| Error::Input {
+        file: name.to_string(),
+        line: e.line(),
+        column: e.column(),
+        key: "model".into(),
+        message: format!("not {what}: {e}"),
+    })
 }
 
 /// The bytes of `file` as text, or a bad-input error at the first invalid line.

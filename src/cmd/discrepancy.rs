@@ -216,8 +216,10 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let domain: DomainName = h.domain.into();
-    if domain != DomainName::Thermal {
-        return Err(bad(format!("hidden-effect data for the {} domain is not built in this version", domain.name())));
+    match domain {
+        DomainName::Motion => return hidden_motion(&h, ctx),
+        DomainName::Extrusion => return hidden_extrusion(&h, ctx),
+        DomainName::Thermal => {}
     }
     let opts = HiddenOptions { seed: h.seed, samples: h.samples, seeds: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let twin = Twin::default();
@@ -233,6 +235,38 @@ fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let value = json!({"out": h.out.display().to_string(), "cases": cases.len(), "seed": opts.seed, "generator": hidden::GENERATOR});
     ctx.emit(&value, || format!("{} cases in {} (answers in answers.json, seed {})\n", cases.len(), h.out.display(), opts.seed));
     Ok(())
+}
+
+/// Write a motion or extrusion hidden-effect set (`cases/*.csv` + `answers.json`) and report it.
+fn write_hidden(out: &Path, domain: &str, generator: &str, seed: u64, files: Vec<(String, Vec<u8>)>, ctx: &Ctx) -> anyhow::Result<()> {
+    let cases = files.len().saturating_sub(1);
+    let paths: Vec<(PathBuf, Vec<u8>)> = files.into_iter().map(|(name, bytes)| (out.join(name), bytes)).collect();
+    let refs: Vec<(&Path, &[u8])> = paths.iter().map(|(p, b)| (p.as_path(), b.as_slice())).collect();
+    write_files_atomic(&refs)?;
+    let value = json!({"out": out.display().to_string(), "domain": domain, "cases": cases, "seed": seed, "generator": generator});
+    ctx.emit(&value, || format!("{cases} {domain} cases in {} (answers in answers.json, seed {seed})\n", out.display()));
+    Ok(())
+}
+
+/// `fdmlab discrepancy hidden --domain motion`: the full set of
+/// `models::discrepancy::motion::hidden::HiddenConfig::full` (`--seeds` replicates per cell,
+/// `--null-cases` effect-free cases per noise level).
+fn hidden_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::motion::hidden as mh;
+    let config = mh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..mh::HiddenConfig::full(h.seed) };
+    let cases = mh::generate(&config).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::motion::hidden_files(&config, &cases)?;
+    write_hidden(&h.out, "motion", mh::GENERATOR, h.seed, files, ctx)
+}
+
+/// `fdmlab discrepancy hidden --domain extrusion`: as [`hidden_motion`] for
+/// `models::discrepancy::extrusion::hidden::HiddenConfig::full`.
+fn hidden_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::extrusion::hidden as eh;
+    let config = eh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..eh::HiddenConfig::full(h.seed) };
+    let cases = eh::generate(&config).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::extrusion::hidden_files(&config, &cases)?;
+    write_hidden(&h.out, "extrusion", eh::GENERATOR, h.seed, files, ctx)
 }
 
 /// `fdmlab bench discrepancy`

@@ -3,6 +3,7 @@
 mod cache;
 mod cli;
 mod common;
+mod discrepancy_domains;
 mod foundation;
 mod hbot;
 mod pa;

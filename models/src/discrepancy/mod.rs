@@ -37,8 +37,11 @@
 //! the augmented model. [`Report`] serialises to exactly the JSON of the
 //! command's stdout.
 
+pub mod extrusion;
 pub mod hidden;
+pub mod motion;
 pub mod select;
+pub mod simfit;
 pub mod stats;
 pub mod thermal;
 

@@ -1,0 +1,367 @@
+//! Motion domain of the discrepancy workflow: an H-Bot axis measured by a
+//! displacement sensor, data `time_s, cmd_y_mm, meas_y_mm` (or x).
+//!
+//! Base model: the H-Bot twin with viscous friction only (bearing and motor Coulomb
+//! levels zero), reduced exactly to the measured axis ([`axis`]); its fitted parameter
+//! is the motor inertia J_M (the moving inertia is dominated by the two rotors, 2·J_M/r²
+//! ≈ 30 kg at the belt), plus a constant sensor offset. Candidates are the physical
+//! terms of [`MotionEffect`], each turned into regressor columns by simulating the
+//! model with the term switched on at a typical magnitude (a secant sensitivity of the
+//! output, in mm per unit of the term's scale). Winners are added to the plant and
+//! all parameters re-identified by simulation ([`identify`]).
+
+pub mod axis;
+pub mod hidden;
+
+use super::simfit;
+use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
+use crate::hbot::ident::Axis;
+use crate::hbot::HbotParams;
+use crate::ModelError;
+pub use axis::{AxisPlant, MotionEffects};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Measured positions of one axis (mm) against its command (mm), at times `t_s`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionData {
+    pub axis: Axis,
+    pub t_s: Vec<f64>,
+    pub cmd_mm: Vec<f64>,
+    pub meas_mm: Vec<f64>,
+}
+
+/// Fewest samples the workflow accepts (ranking needs degrees of freedom).
+pub const MIN_SAMPLES: usize = 20;
+
+impl MotionData {
+    /// Equal lengths, at least [`MIN_SAMPLES`] samples, strictly increasing finite time.
+    pub fn check(&self) -> Result<(), ModelError> {
+        let n = self.t_s.len();
+        if self.cmd_mm.len() != n || self.meas_mm.len() != n {
+            return Err(ModelError::Shape(format!("{n} times, {} commands, {} measurements", self.cmd_mm.len(), self.meas_mm.len())));
+        }
+        if n < MIN_SAMPLES {
+            return Err(ModelError::Shape(format!("{n} samples; the workflow needs at least {MIN_SAMPLES}")));
+        }
+        if let Some(i) = self.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)) {
+            return Err(ModelError::Shape(format!("time does not increase at sample {}", i + 1)));
+        }
+        if self.t_s.iter().chain(&self.cmd_mm).chain(&self.meas_mm).any(|v| !v.is_finite()) {
+            return Err(ModelError::Shape("a value is not finite".into()));
+        }
+        Ok(())
+    }
+}
+
+/// A motion model: twin parameters, the effects added to it and the sensor offset.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionModel {
+    pub axis: Axis,
+    pub params: HbotParams,
+    pub effects: MotionEffects,
+    /// Constant offset of the sensor reading (mm), fitted with every model.
+    pub offset_mm: f64,
+}
+
+impl MotionModel {
+    /// The base model: the source's identified twin (Cao, Bi & Zou 2021, table 5) with
+    /// every Coulomb level set to zero, no effects.
+    pub fn base(axis: Axis) -> Self {
+        let params = HbotParams { t0_nm: 0.0, fc_cart_n: 0.0, fc_bridge_n: 0.0, ..HbotParams::source_identified() };
+        Self { axis, params, effects: MotionEffects::default(), offset_mm: 0.0 }
+    }
+
+    /// The plant of this model.
+    pub fn plant(&self) -> Result<AxisPlant, ModelError> {
+        AxisPlant::new(&self.params, self.axis, &self.effects)
+    }
+
+    /// Simulated axis position (mm, offset not included) at the data's times.
+    pub fn simulate_mm(&self, data: &MotionData) -> Result<Vec<f64>, ModelError> {
+        let plant = self.plant()?;
+        let cmd = |t: f64| axis::interpolate(&data.t_s, &data.cmd_mm, t) * 1e-3;
+        Ok(plant.simulate(&data.t_s, &cmd, plant.default_step_s())?.into_iter().map(|y| y * 1e3).collect())
+    }
+
+    /// Simulated reading (mm): position plus offset.
+    pub fn predict_mm(&self, data: &MotionData) -> Result<Vec<f64>, ModelError> {
+        Ok(self.simulate_mm(data)?.into_iter().map(|y| y + self.offset_mm).collect())
+    }
+
+    /// Belt stiffness (N/m) seen by the axis without added compliance.
+    pub fn belt_stiffness_n_per_m(&self) -> f64 {
+        let p = &self.params;
+        match self.axis {
+            Axis::Y => p.k_l_n_per_m + p.k_r_n_per_m + 4.0 * p.k_u_n_per_m,
+            Axis::X => p.k_l_n_per_m + p.k_r_n_per_m,
+        }
+    }
+}
+
+/// The named physical effects the motion base model can miss.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MotionEffect {
+    CoulombFriction,
+    ViscousFriction,
+    Stribeck,
+    BeltCompliance,
+    Backlash,
+    Cogging,
+}
+
+impl MotionEffect {
+    /// Every candidate, in the library's order.
+    pub const ALL: [MotionEffect; 6] = [
+        MotionEffect::CoulombFriction,
+        MotionEffect::ViscousFriction,
+        MotionEffect::Stribeck,
+        MotionEffect::BeltCompliance,
+        MotionEffect::Backlash,
+        MotionEffect::Cogging,
+    ];
+
+    /// Name in reports and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            MotionEffect::CoulombFriction => "coulomb_friction",
+            MotionEffect::ViscousFriction => "viscous_friction",
+            MotionEffect::Stribeck => "stribeck",
+            MotionEffect::BeltCompliance => "belt_compliance",
+            MotionEffect::Backlash => "backlash",
+            MotionEffect::Cogging => "cogging",
+        }
+    }
+
+    /// Parse a name as printed by [`MotionEffect::name`].
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|e| e.name() == name)
+    }
+
+    /// Names of the term's parameters (fields of [`MotionEffects`]).
+    pub fn parameter_names(self) -> &'static [&'static str] {
+        match self {
+            MotionEffect::CoulombFriction => &["coulomb_n"],
+            MotionEffect::ViscousFriction => &["viscous_ns_per_m"],
+            MotionEffect::Stribeck => &["stribeck_n"],
+            MotionEffect::BeltCompliance => &["belt_compliance_m_per_n"],
+            MotionEffect::Backlash => &["backlash_m"],
+            MotionEffect::Cogging => &["cogging_sin_n", "cogging_cos_n"],
+        }
+    }
+
+    /// Typical magnitude of each parameter for `model`: the step of the secant
+    /// columns and the unit of the fitted coefficients. Friction 2 N (a fifth of the
+    /// source's bridge Coulomb level, 9 N), viscous 20 N·s/m (≈ 0.6× the source's
+    /// b_bridge), compliance that halves the belt stiffness, backlash 20 µm, cogging 1 N.
+    pub fn scales(self, model: &MotionModel) -> Vec<f64> {
+        match self {
+            MotionEffect::CoulombFriction | MotionEffect::Stribeck => vec![2.0],
+            MotionEffect::ViscousFriction => vec![20.0],
+            MotionEffect::BeltCompliance => vec![1.0 / model.belt_stiffness_n_per_m()],
+            MotionEffect::Backlash => vec![20e-6],
+            MotionEffect::Cogging => vec![1.0, 1.0],
+        }
+    }
+
+    /// The term's parameter values in `e`.
+    pub fn get(self, e: &MotionEffects) -> Vec<f64> {
+        match self {
+            MotionEffect::CoulombFriction => vec![e.coulomb_n],
+            MotionEffect::ViscousFriction => vec![e.viscous_ns_per_m],
+            MotionEffect::Stribeck => vec![e.stribeck_n],
+            MotionEffect::BeltCompliance => vec![e.belt_compliance_m_per_n],
+            MotionEffect::Backlash => vec![e.backlash_m],
+            MotionEffect::Cogging => vec![e.cogging_sin_n, e.cogging_cos_n],
+        }
+    }
+
+    /// Set the term's parameters; levels that must be ≥ 0 take the magnitude (so an
+    /// unconstrained search can cross zero without leaving the physical range).
+    pub fn set(self, e: &mut MotionEffects, v: &[f64]) {
+        let at = |i: usize| v.get(i).copied().unwrap_or(0.0);
+        match self {
+            MotionEffect::CoulombFriction => e.coulomb_n = at(0).abs(),
+            MotionEffect::ViscousFriction => e.viscous_ns_per_m = at(0),
+            MotionEffect::Stribeck => e.stribeck_n = at(0).abs(),
+            MotionEffect::BeltCompliance => e.belt_compliance_m_per_n = at(0).abs(),
+            MotionEffect::Backlash => e.backlash_m = at(0).abs(),
+            MotionEffect::Cogging => {
+                e.cogging_sin_n = at(0);
+                e.cogging_cos_n = at(1);
+            }
+        }
+    }
+}
+
+/// Regressor columns of one candidate: per parameter, (prediction with the parameter
+/// raised by its scale − prediction) in mm, so a coefficient c means c·scale.
+pub fn candidate_columns(model: &MotionModel, data: &MotionData, effect: MotionEffect, base_mm: &[f64]) -> Result<Vec<Vec<f64>>, ModelError> {
+    let scales = effect.scales(model);
+    let values = effect.get(&model.effects);
+    let mut out = Vec::with_capacity(scales.len());
+    for (j, s) in scales.iter().enumerate() {
+        let mut v = values.clone();
+        v[j] += s;
+        let mut m = *model;
+        effect.set(&mut m.effects, &v);
+        let y = m.simulate_mm(data)?;
+        out.push(y.iter().zip(base_mm).map(|(a, b)| a - b).collect());
+    }
+    Ok(out)
+}
+
+/// Columns of the base model's own parameters, for the refit inside the ranking:
+/// the sensitivity to a 10 % change of J_M (mm) and the offset (ones).
+pub fn base_columns(model: &MotionModel, data: &MotionData, base_mm: &[f64]) -> Result<Vec<Vec<f64>>, ModelError> {
+    let mut m = *model;
+    m.params.j_m_kgm2 *= 1.1;
+    let y = m.simulate_mm(data)?;
+    Ok(vec![y.iter().zip(base_mm).map(|(a, b)| a - b).collect(), vec![1.0; base_mm.len()]])
+}
+
+/// Re-identify by simulation: J_M (log scale) and every parameter of `effects`
+/// (in units of their scales), the offset projected out as the mean residual.
+/// Starts from `model` (whose effect values seed the search).
+pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]) -> Result<MotionModel, ModelError> {
+    data.check()?;
+    let j0 = model.params.j_m_kgm2;
+    let mut scales = Vec::new();
+    let mut p0 = vec![0.0];
+    for e in effects {
+        let s = e.scales(model);
+        p0.extend(e.get(&model.effects).iter().zip(&s).map(|(v, s)| v / s));
+        scales.push(s);
+    }
+    let build = |p: &[f64]| -> MotionModel {
+        let mut m = *model;
+        m.params.j_m_kgm2 = j0 * p[0].exp();
+        let mut k = 1;
+        for (e, s) in effects.iter().zip(&scales) {
+            let v: Vec<f64> = s.iter().enumerate().map(|(i, s)| p[k + i] * s).collect();
+            e.set(&mut m.effects, &v);
+            k += s.len();
+        }
+        m
+    };
+    let residual = |p: &[f64]| -> Option<Vec<f64>> {
+        let m = build(p);
+        let y = m.simulate_mm(data).ok()?;
+        let offset = mean_difference(&data.meas_mm, &y);
+        Some(y.iter().zip(&data.meas_mm).map(|(y, z)| y + offset - z).collect())
+    };
+    let steps = vec![1e-3; p0.len()];
+    let fit = simfit::fit(residual, &p0, &steps)?;
+    let mut out = build(&fit.params);
+    let y = out.simulate_mm(data)?;
+    out.offset_mm = mean_difference(&data.meas_mm, &y);
+    Ok(out)
+}
+
+/// Mean of `a − b`.
+fn mean_difference(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len()).max(1);
+    a.iter().zip(b).map(|(a, b)| a - b).sum::<f64>() / n as f64
+}
+
+impl MotionEffect {
+    /// Whether the term is in `e` (any parameter non-zero).
+    pub fn is_on(self, e: &MotionEffects) -> bool {
+        self.get(e).iter().any(|v| *v != 0.0)
+    }
+}
+
+/// The effects present in `model`, in the library's order.
+pub fn active_effects(model: &MotionModel) -> Vec<MotionEffect> {
+    MotionEffect::ALL.into_iter().filter(|e| e.is_on(&model.effects)).collect()
+}
+
+/// The motion domain on one data set (see [`super::Domain`]).
+#[derive(Debug, Clone)]
+pub struct MotionDomain {
+    data: MotionData,
+}
+
+impl MotionDomain {
+    /// Check the data and hold them.
+    pub fn new(data: MotionData) -> Result<Self, ModelError> {
+        data.check()?;
+        Ok(Self { data })
+    }
+}
+
+impl Domain for MotionDomain {
+    type Model = MotionModel;
+    fn unit(&self) -> &'static str {
+        "mm"
+    }
+    fn time_s(&self) -> Vec<f64> {
+        self.data.t_s.clone()
+    }
+    fn measured(&self) -> Vec<f64> {
+        self.data.meas_mm.clone()
+    }
+    fn inputs(&self) -> Vec<(String, Vec<f64>)> {
+        let name = match self.data.axis {
+            Axis::X => "cmd_x_mm",
+            Axis::Y => "cmd_y_mm",
+        };
+        vec![(name.to_string(), self.data.cmd_mm.clone())]
+    }
+    fn fit_base(&self) -> Result<MotionModel, ModelError> {
+        identify(&self.data, &MotionModel::base(self.data.axis), &[])
+    }
+    fn simulate(&self, model: &MotionModel) -> Vec<f64> {
+        model.predict_mm(&self.data).unwrap_or_else(|_| vec![f64::NAN; self.data.t_s.len()])
+    }
+    fn base_columns(&self, model: &MotionModel) -> Vec<Vec<f64>> {
+        let Ok(raw) = model.simulate_mm(&self.data) else {
+            return Vec::new();
+        };
+        let mut cols = base_columns(model, &self.data, &raw).unwrap_or_default();
+        for e in active_effects(model) {
+            cols.extend(candidate_columns(model, &self.data, e, &raw).unwrap_or_default());
+        }
+        cols
+    }
+    fn candidates(&self, model: &MotionModel) -> Vec<Candidate> {
+        let Ok(raw) = model.simulate_mm(&self.data) else {
+            return Vec::new();
+        };
+        MotionEffect::ALL
+            .into_iter()
+            .filter(|e| !e.is_on(&model.effects))
+            .filter_map(|e| {
+                let columns = candidate_columns(model, &self.data, e, &raw).ok()?;
+                Some(Candidate { name: e.name().to_string(), columns, column_names: e.parameter_names().iter().map(|s| s.to_string()).collect() })
+            })
+            .collect()
+    }
+    fn augment(&self, model: &MotionModel, effect: &Ranked) -> Result<MotionModel, ModelError> {
+        let e = MotionEffect::from_name(&effect.name).ok_or_else(|| ModelError::invalid("effect", &effect.name, "not a motion effect"))?;
+        let mut seeded = *model;
+        let v: Vec<f64> = e.get(&model.effects).iter().zip(e.scales(model)).zip(&effect.coefficients).map(|((v, s), c)| v + c * s).collect();
+        e.set(&mut seeded.effects, &v);
+        let mut effects = active_effects(model);
+        effects.push(e);
+        identify(&self.data, &seeded, &effects)
+    }
+    fn effect_parameters(&self, model: &MotionModel, effect: &str) -> BTreeMap<String, f64> {
+        let Some(e) = MotionEffect::from_name(effect) else {
+            return BTreeMap::new();
+        };
+        let mut out: BTreeMap<String, f64> = e.parameter_names().iter().map(|n| n.to_string()).zip(e.get(&model.effects)).collect();
+        if e == MotionEffect::Stribeck {
+            out.insert("stribeck_v_m_s".into(), model.effects.stribeck_v_m_s);
+        }
+        out.insert("j_m_kgm2".into(), model.params.j_m_kgm2);
+        out
+    }
+}
+
+/// The workflow on motion data, from `model` if given, else from the base model.
+pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &SelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
+    super::run(&MotionDomain::new(data)?, model, opts)
+}

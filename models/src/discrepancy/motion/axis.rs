@@ -1,0 +1,436 @@
+//! One axis of the H-Bot twin, reduced exactly, plus the physical effects the
+//! discrepancy workflow can add to it.
+//!
+//! Reduction (Cao, Bi & Zou 2021, eqs. (7)–(10), with kL = kR = k): on a pure y move
+//! the motors turn in opposite senses (φ2 = −φ1) and the cart feels no net belt force;
+//! on a pure x move they turn together (φ2 = φ1) and the bridge feels none. Writing the
+//! motor side as one belt coordinate z = r·φ1, the eight states reduce to four:
+//!
+//! ```text
+//! M_z z'' = F_drive(cmd − z) − C_z z' − F_belt(z − q) − friction_z(z')     M_z = 2 J_M / r², C_z = 2 Kt / r²
+//! m   q'' = F_belt(z − q) − friction_q(q')                                   q = y (bridge) or x (cart)
+//! F_belt(e) = k_belt e,   k_belt = kL + kR + 4 kU (y) or kL + kR (x)
+//! F_drive(d) = (2/r) clamp(K_d d / r, ±T_hold)   (the twin's saturating stepper drive, both motors)
+//! ```
+//!
+//! The motor's Coulomb torque T0 becomes 2·T0/r at the belt. Stick/slip switching is
+//! the twin's (Karnopp-style, explicit), so with the twin's parameters this plant
+//! reproduces `hbot::Twin` on single-axis moves to rounding (tested below).
+//!
+//! Effects (zero in the base model, lumped at the belt, SI units):
+//! - `coulomb_n`: Coulomb friction of the moving axis' bearings, `sign(v)·Fc`.
+//! - `viscous_ns_per_m`: viscous bearing friction beyond the model's, `Δb·v`.
+//! - `stribeck_n`, `stribeck_v_m_s`: Stribeck excess `sign(v)·ΔFs·exp(−(v/v_s)²)`
+//!   (Armstrong-Hélouvry, Dupont & Canudas de Wit 1994, eq. 2); break-away needs
+//!   Fc + ΔFs.
+//! - `belt_compliance_m_per_n`: extra series compliance c of the belt run,
+//!   k_eff = k_belt / (1 + k_belt·c).
+//! - `backlash_m`: half-width δ of the play in the pulley–belt mesh, the hysteresis
+//!   (play) operator of Tao & Kokotović (1996, eq. 2.1): the belt's driven end b
+//!   follows the motor side only once the gap is taken up, b ∈ [z − δ, z + δ], and
+//!   F_belt = k_eff·(b − q). The belt end is massless, so it stays put while the gap
+//!   is open and the axis rests on the belt instead of floating in the gap.
+//! - `cogging_sin_n`, `cogging_cos_n`: detent force of the motors at the belt,
+//!   `A_s sin(2π z/p) + A_c cos(2π z/p)` with p one full step of belt travel
+//!   (2π r / 200 for 1.8° motors: the detent torque repeats every full step).
+
+use crate::hbot::ident::Axis;
+use crate::hbot::HbotParams;
+use crate::ModelError;
+use serde::{Deserialize, Serialize};
+
+/// Full steps per motor revolution (1.8° motors): the detent period.
+pub const FULL_STEPS_PER_REV: f64 = 200.0;
+
+/// Default Stribeck velocity (m/s) of the `stribeck` candidate: 1 mm/s, within the
+/// 0.1–10 mm/s range Armstrong-Hélouvry et al. (1994) report for lubricated contacts.
+pub const DEFAULT_STRIBECK_V_M_S: f64 = 1e-3;
+
+/// Default integration safety ω_max·h (as `hbot::twin::DEFAULT_SAFETY`).
+pub const DEFAULT_SAFETY: f64 = 0.2;
+
+/// The effects beyond the viscous-only base model; all zero means "none".
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotionEffects {
+    pub coulomb_n: f64,
+    pub viscous_ns_per_m: f64,
+    pub stribeck_n: f64,
+    pub stribeck_v_m_s: f64,
+    pub belt_compliance_m_per_n: f64,
+    pub backlash_m: f64,
+    pub cogging_sin_n: f64,
+    pub cogging_cos_n: f64,
+}
+
+impl Default for MotionEffects {
+    fn default() -> Self {
+        Self {
+            coulomb_n: 0.0,
+            viscous_ns_per_m: 0.0,
+            stribeck_n: 0.0,
+            stribeck_v_m_s: DEFAULT_STRIBECK_V_M_S,
+            belt_compliance_m_per_n: 0.0,
+            backlash_m: 0.0,
+            cogging_sin_n: 0.0,
+            cogging_cos_n: 0.0,
+        }
+    }
+}
+
+impl MotionEffects {
+    /// Reject values the plant cannot simulate (levels, compliance and backlash ≥ 0,
+    /// Stribeck velocity > 0, all finite). The extra viscous term may be negative (the
+    /// model's damping was too high) as long as the total stays ≥ 0, checked by the plant.
+    pub fn check(&self) -> Result<(), ModelError> {
+        let non_negative = [
+            ("coulomb_n", self.coulomb_n),
+            ("stribeck_n", self.stribeck_n),
+            ("belt_compliance_m_per_n", self.belt_compliance_m_per_n),
+            ("backlash_m", self.backlash_m),
+        ];
+        for (name, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ModelError::invalid(name, v, "must be a finite number ≥ 0"));
+            }
+        }
+        if !(self.stribeck_v_m_s.is_finite() && self.stribeck_v_m_s > 0.0) {
+            return Err(ModelError::invalid("stribeck_v_m_s", self.stribeck_v_m_s, "must be a finite number > 0"));
+        }
+        for (name, v) in [("viscous_ns_per_m", self.viscous_ns_per_m), ("cogging_sin_n", self.cogging_sin_n), ("cogging_cos_n", self.cogging_cos_n)] {
+            if !v.is_finite() {
+                return Err(ModelError::invalid(name, v, "must be finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Friction law of one coordinate: `b·v + sign(v)·(Fc + ΔFs·exp(−(v/v_s)²))`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Friction {
+    viscous: f64,
+    coulomb: f64,
+    stribeck: f64,
+    stribeck_v: f64,
+}
+
+impl Friction {
+    /// Level a stuck coordinate must overcome to break away.
+    fn static_level(&self) -> f64 {
+        self.coulomb + self.stribeck
+    }
+    /// Dry-friction magnitude while sliding at speed `v`.
+    fn sliding(&self, v: f64) -> f64 {
+        let s = v / self.stribeck_v;
+        self.coulomb + self.stribeck * (-s * s).exp()
+    }
+}
+
+/// Coulomb state of a coordinate (as in `hbot::twin`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    Stuck,
+    Slipping(f64),
+}
+
+/// The reduced single-axis plant, assembled once.
+#[derive(Debug, Clone)]
+pub struct AxisPlant {
+    /// Masses of the motor side (z) and the moved axis (q), kg.
+    mass: [f64; 2],
+    friction: [Friction; 2],
+    k_belt: f64,
+    backlash: f64,
+    r_m: f64,
+    drive_k: f64,
+    drive_max: f64,
+    cogging: [f64; 2],
+    cog_wavenumber: f64,
+}
+
+impl AxisPlant {
+    /// The plant of `axis` for the twin's parameters plus `effects`. Needs kL = kR
+    /// (the source's values): otherwise a single-axis move couples the axes.
+    pub fn new(p: &HbotParams, axis: Axis, effects: &MotionEffects) -> Result<Self, ModelError> {
+        p.check()?;
+        effects.check()?;
+        let (kl, kr, ku, r) = (p.k_l_n_per_m, p.k_r_n_per_m, p.k_u_n_per_m, p.r_m);
+        if (kl - kr).abs() > 1e-9 * kl.max(kr) {
+            return Err(ModelError::invalid("kR", kr, "the single-axis reduction needs kL = kR"));
+        }
+        let (m_q, b_q, fc_q, k_belt) = match axis {
+            Axis::Y => (p.m_bridge_kg, p.b_bridge_ns_per_m, p.fc_bridge_n, kl + kr + 4.0 * ku),
+            Axis::X => (p.m_cart_kg, p.b_cart_ns_per_m, p.fc_cart_n, kl + kr),
+        };
+        let viscous_q = b_q + effects.viscous_ns_per_m;
+        if viscous_q < 0.0 {
+            return Err(ModelError::invalid("viscous_ns_per_m", effects.viscous_ns_per_m, "makes the total bearing damping negative"));
+        }
+        let c = effects.belt_compliance_m_per_n;
+        let k_eff = k_belt / (1.0 + k_belt * c);
+        Ok(Self {
+            mass: [2.0 * p.j_m_kgm2 / (r * r), m_q],
+            friction: [
+                Friction { viscous: 2.0 * p.kt_nms / (r * r), coulomb: 2.0 * p.t0_nm / r, stribeck: 0.0, stribeck_v: DEFAULT_STRIBECK_V_M_S },
+                Friction { viscous: viscous_q, coulomb: fc_q + effects.coulomb_n, stribeck: effects.stribeck_n, stribeck_v: effects.stribeck_v_m_s },
+            ],
+            k_belt: k_eff,
+            backlash: effects.backlash_m,
+            r_m: r,
+            drive_k: p.drive.stiffness_nm_per_rad,
+            drive_max: p.drive.holding_torque_nm,
+            cogging: [effects.cogging_sin_n, effects.cogging_cos_n],
+            cog_wavenumber: FULL_STEPS_PER_REV / r,
+        })
+    }
+
+    /// Highest undamped mode (rad/s) bound: the 2×2 M⁻¹K with the linear drive
+    /// stiffness 2·K_d/r² and the cogging force's largest slope added on z.
+    pub fn omega_max_rad_s(&self) -> f64 {
+        let kd = 2.0 * self.drive_k / (self.r_m * self.r_m) + self.cogging[0].hypot(self.cogging[1]) * self.cog_wavenumber;
+        let kb = self.k_belt;
+        // Symmetric S = M^-½ K M^-½ with K = [[kd + kb, −kb], [−kb, kb]].
+        let (a, d) = ((kd + kb) / self.mass[0], kb / self.mass[1]);
+        let b = -kb / (self.mass[0] * self.mass[1]).sqrt();
+        let tr = a + d;
+        let disc = ((a - d) * (a - d) + 4.0 * b * b).sqrt();
+        (0.5 * (tr + disc)).sqrt()
+    }
+
+    /// Spring, drive, cogging and viscous forces on (z, q): everything but dry friction.
+    #[inline]
+    fn forces(&self, x: &[f64; 2], v: &[f64; 2], cmd_m: f64, play: f64) -> [f64; 2] {
+        let belt = self.k_belt * (self.belt_end(x[0], play) - x[1]);
+        let drive = (self.drive_k * (cmd_m - x[0]) / self.r_m).clamp(-self.drive_max, self.drive_max) * 2.0 / self.r_m;
+        let phase = self.cog_wavenumber * x[0];
+        let cog = self.cogging[0] * phase.sin() + self.cogging[1] * phase.cos();
+        [drive + cog - belt - self.friction[0].viscous * v[0], belt - self.friction[1].viscous * v[1]]
+    }
+
+    /// The belt's driven end for motor side `z` and last end position `play`.
+    #[inline]
+    fn belt_end(&self, z: f64, play: f64) -> f64 {
+        play.clamp(z - self.backlash, z + self.backlash)
+    }
+
+    #[inline]
+    fn accel(&self, x: &[f64; 2], v: &[f64; 2], cmd_m: f64, play: f64, modes: &[Mode; 2]) -> [f64; 2] {
+        let f = self.forces(x, v, cmd_m, play);
+        let mut a = [0.0; 2];
+        for i in 0..2 {
+            a[i] = match modes[i] {
+                Mode::Stuck => 0.0,
+                Mode::Slipping(s) => (f[i] - s * self.friction[i].sliding(v[i])) / self.mass[i],
+            };
+        }
+        a
+    }
+
+    /// Positions of the moved axis (m) at the times `t_s` (increasing), starting at
+    /// rest at the command's first value, driven by `cmd_m(t)` (commanded axis
+    /// position, m). Each sample interval is split into equal RK4 steps no longer than
+    /// `max_step_s`; friction modes switch between steps as in `hbot::twin`.
+    pub fn simulate(&self, t_s: &[f64], cmd_m: &dyn Fn(f64) -> f64, max_step_s: f64) -> Result<Vec<f64>, ModelError> {
+        if !(max_step_s.is_finite() && max_step_s > 0.0) {
+            return Err(ModelError::invalid("max_step_s", max_step_s, "must be > 0"));
+        }
+        let Some(&t0) = t_s.first() else {
+            return Ok(Vec::new());
+        };
+        let start = cmd_m(t0);
+        let mut x = [start, start];
+        let mut v = [0.0; 2];
+        let mut modes = [Mode::Stuck; 2];
+        let mut play = start;
+        let mut out = Vec::with_capacity(t_s.len());
+        out.push(x[1]);
+        for w in t_s.windows(2) {
+            let dt = w[1] - w[0];
+            if !(dt.is_finite() && dt > 0.0) {
+                return Err(ModelError::Shape(format!("time must increase: {} then {}", w[0], w[1])));
+            }
+            // (1 − 1e-12): a step that divides the interval must not round up to one more.
+            let n = (dt / max_step_s * (1.0 - 1e-12)).ceil().max(1.0);
+            if n > 1e7 {
+                return Err(ModelError::invalid("time step", dt, "needs more than 1e7 integration steps"));
+            }
+            let h = dt / n;
+            for j in 0..n as usize {
+                self.step(&mut x, &mut v, &mut modes, &mut play, w[0] + j as f64 * h, h, cmd_m);
+            }
+            out.push(x[1]);
+        }
+        if x.iter().chain(v.iter()).any(|s| !s.is_finite()) {
+            return Err(ModelError::Numerical("the axis plant's state became non-finite".into()));
+        }
+        Ok(out)
+    }
+
+    /// Step for the default safety.
+    pub fn default_step_s(&self) -> f64 {
+        (DEFAULT_SAFETY / self.omega_max_rad_s()).min(1e-3)
+    }
+
+    /// One RK4 step with friction modes frozen, then stick/slip switching (`hbot::twin`).
+    /// The play state `play` is held within a step and updated at its end.
+    #[allow(clippy::too_many_arguments)]
+    fn step(&self, x: &mut [f64; 2], v: &mut [f64; 2], modes: &mut [Mode; 2], play: &mut f64, t: f64, h: f64, cmd_m: &dyn Fn(f64) -> f64) {
+        let (c0, cm, c1) = (cmd_m(t), cmd_m(t + 0.5 * h), cmd_m(t + h));
+        let p = *play;
+        let f0 = self.forces(x, v, c0, p);
+        for i in 0..2 {
+            let level = self.friction[i].static_level();
+            if modes[i] == Mode::Stuck && f0[i].abs() > level {
+                modes[i] = Mode::Slipping(f0[i].signum());
+            }
+        }
+        let vel = |v: &[f64; 2]| -> [f64; 2] {
+            let mut d = *v;
+            for i in 0..2 {
+                if modes[i] == Mode::Stuck {
+                    d[i] = 0.0;
+                }
+            }
+            d
+        };
+        let add = |a: &[f64; 2], b: &[f64; 2], s: f64| -> [f64; 2] { [a[0] + s * b[0], a[1] + s * b[1]] };
+        let k1x = vel(v);
+        let k1v = self.accel(x, v, c0, p, modes);
+        let (x2, v2) = (add(x, &k1x, 0.5 * h), add(v, &k1v, 0.5 * h));
+        let k2x = vel(&v2);
+        let k2v = self.accel(&x2, &v2, cm, p, modes);
+        let (x3, v3) = (add(x, &k2x, 0.5 * h), add(v, &k2v, 0.5 * h));
+        let k3x = vel(&v3);
+        let k3v = self.accel(&x3, &v3, cm, p, modes);
+        let (x4, v4) = (add(x, &k3x, h), add(v, &k3v, h));
+        let k4x = vel(&v4);
+        let k4v = self.accel(&x4, &v4, c1, p, modes);
+        for i in 0..2 {
+            let x_new = x[i] + h / 6.0 * (k1x[i] + 2.0 * k2x[i] + 2.0 * k3x[i] + k4x[i]);
+            let v_new = v[i] + h / 6.0 * (k1v[i] + 2.0 * k2v[i] + 2.0 * k3v[i] + k4v[i]);
+            if let Mode::Slipping(s) = modes[i] {
+                if v_new * s < 0.0 && self.friction[i].static_level() > 0.0 {
+                    // Reversal inside the step: stop at the interpolated zero crossing.
+                    let theta = v[i] / (v[i] - v_new);
+                    x[i] += 0.5 * theta * h * v[i];
+                    v[i] = 0.0;
+                    modes[i] = Mode::Stuck;
+                    continue;
+                }
+                if v_new * s < 0.0 {
+                    // No dry friction: the sign only labels the direction.
+                    modes[i] = Mode::Slipping(-s);
+                }
+            }
+            x[i] = x_new;
+            v[i] = if modes[i] == Mode::Stuck { 0.0 } else { v_new };
+        }
+        *play = self.belt_end(x[0], p);
+    }
+}
+
+/// Linear interpolation of samples `(t_s, y)`; held constant outside the range.
+/// `t_s` must be increasing (checked by the callers' data readers).
+pub fn interpolate(t_s: &[f64], y: &[f64], t: f64) -> f64 {
+    let n = t_s.len().min(y.len());
+    if n == 0 {
+        return 0.0;
+    }
+    if t <= t_s[0] {
+        return y[0];
+    }
+    if t >= t_s[n - 1] {
+        return y[n - 1];
+    }
+    let i = t_s[..n].partition_point(|&s| s <= t).saturating_sub(1).min(n - 2);
+    let f = (t - t_s[i]) / (t_s[i + 1] - t_s[i]);
+    y[i] + f * (y[i + 1] - y[i])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hbot::{LinearMove, Twin};
+
+    fn times(n: usize, dt: f64) -> Vec<f64> {
+        (0..=n).map(|i| i as f64 * dt).collect()
+    }
+
+    #[test]
+    fn reproduces_the_full_twin_on_single_axis_moves() {
+        // External reference: the 8-state twin (hbot::twin) on the source's 8 mm moves.
+        let p = HbotParams::source_identified();
+        let twin = Twin::new(&p).expect("twin");
+        for (axis, mv) in [
+            (Axis::Y, LinearMove::constant_speed(0.0, 8e-3, 0.25).expect("move")),
+            (Axis::Y, LinearMove::constant_speed(0.0, -8e-3, 0.75).expect("move")),
+            (Axis::X, LinearMove::constant_speed(8e-3, 0.0, 0.25).expect("move")),
+        ] {
+            let (h, _) = twin.step_for(0.01, crate::hbot::twin::DEFAULT_SAFETY);
+            let full = twin.simulate(&mv, 1.0, 0.01, crate::hbot::twin::DEFAULT_SAFETY).expect("sim");
+            let plant = AxisPlant::new(&p, axis, &MotionEffects::default()).expect("plant");
+            let cmd = |t: f64| match axis {
+                Axis::Y => mv.cartesian_m(t)[1],
+                Axis::X => mv.cartesian_m(t)[0],
+            };
+            let reduced = plant.simulate(&times(100, 0.01), &cmd, h).expect("sim");
+            let reference = match axis {
+                Axis::Y => &full.y_m,
+                Axis::X => &full.x_m,
+            };
+            let worst = reduced.iter().zip(reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            // Same step, same switching rules: only rounding (and the reduced sums) differ.
+            assert!(worst < 1e-9, "{axis:?}: max difference {worst} m");
+        }
+    }
+
+    #[test]
+    fn effects_act_as_their_physics_says() {
+        let p = HbotParams { fc_bridge_n: 0.0, fc_cart_n: 0.0, t0_nm: 0.0, ..HbotParams::source_identified() };
+        let t = times(300, 0.01);
+        // A slow ramp to 2 mm then hold.
+        let cmd = |t: f64| (t * 4e-3).min(2e-3);
+        let run = |e: MotionEffects| {
+            let plant = AxisPlant::new(&p, Axis::Y, &e).expect("plant");
+            plant.simulate(&t, &cmd, plant.default_step_s()).expect("sim")
+        };
+        let base = run(MotionEffects::default());
+        // Viscous only, linear drive: ends at the command.
+        assert!((base[300] - 2e-3).abs() < 1e-8, "{}", base[300]);
+        // Coulomb friction Fc stops the axis short: the drive stiffness 2K_d/r² must hold
+        // it, so the final lag is at most Fc/(2K_d/r²) (sticks as soon as it can).
+        let fc = 10.0;
+        let k_drive = 2.0 * p.drive.stiffness_nm_per_rad / (p.r_m * p.r_m);
+        let coul = run(MotionEffects { coulomb_n: fc, ..Default::default() });
+        let lag = 2e-3 - coul[300];
+        assert!(lag > 0.0 && lag <= fc / k_drive * (1.0 + 1e-9), "lag {lag}");
+        // Backlash δ: at constant speed the bearing drag holds the axis on the trailing
+        // side of the gap, so it runs δ behind the frictionless axis.
+        let delta = 50e-6;
+        let bl = run(MotionEffects { backlash_m: delta, ..Default::default() });
+        let during = base[40] - bl[40];
+        assert!((during - delta).abs() < 0.05 * delta, "lag during the ramp {during}");
+        // Cogging: at rest the detent force balances the drive stiffness and the belt is
+        // slack-free, so z = y solves z = cmd + A·sin(2πz/p)/k_drive (a contraction: the
+        // slope ratio A·2π/p/k_drive ≈ 0.67 < 1, so fixed-point iteration finds it).
+        let a = 3.0;
+        let cog = run(MotionEffects { cogging_sin_n: a, ..Default::default() });
+        let wave = FULL_STEPS_PER_REV / p.r_m;
+        let mut z = 2e-3;
+        for _ in 0..500 {
+            z = 2e-3 + a * (wave * z).sin() / k_drive;
+        }
+        assert!((cog[300] - z).abs() < 0.01 * a / k_drive, "{} vs {z}", cog[300]);
+    }
+
+    #[test]
+    fn interpolates_and_holds() {
+        let t = [0.0, 1.0, 3.0];
+        let y = [0.0, 2.0, 0.0];
+        assert_eq!(interpolate(&t, &y, -1.0), 0.0);
+        assert_eq!(interpolate(&t, &y, 0.5), 1.0);
+        assert_eq!(interpolate(&t, &y, 2.0), 1.0);
+        assert_eq!(interpolate(&t, &y, 5.0), 0.0);
+    }
+}

@@ -1,0 +1,100 @@
+//! The discrepancy workflow's motion and extrusion domains on their hidden-effect
+//! sets. Criteria from issue #11: the right effects named in ≥ 95 % of the cases
+//! whose contribution exceeds 3× the noise RMS; an effect named on effect-free data
+//! in ≤ 5 %; residual RMS down ≥ 50 % after the addition; two hidden effects → both
+//! named. The truth is the generator's answer, never the workflow's output.
+
+use fdmlab_models::discrepancy::extrusion::{self, hidden as ehidden};
+use fdmlab_models::discrepancy::motion::{self, hidden as mhidden};
+use fdmlab_models::discrepancy::{Report, SelectOptions};
+
+/// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after.
+struct Verdict {
+    id: String,
+    truth: Vec<(String, f64)>,
+    named: Vec<String>,
+    rms: (f64, f64),
+}
+
+fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
+    Verdict { id: id.to_string(), truth, named: r.effects.iter().map(|e| e.name.clone()).collect(), rms: (r.before.rms, r.after.rms) }
+}
+
+/// Map `f` over `items` on two threads (the CI machine's cores), in order.
+fn par<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let mid = items.len() / 2;
+    std::thread::scope(|s| {
+        let a = s.spawn(|| items[..mid].iter().map(&f).collect::<Vec<R>>());
+        let b: Vec<R> = items[mid..].iter().map(&f).collect();
+        let mut out = a.join().expect("worker");
+        out.extend(b);
+        out
+    })
+}
+
+/// Check the issue's criteria over a set of verdicts; panics with the failures listed.
+fn check_criteria(domain: &str, v: &[Verdict]) {
+    let strong = |c: &Verdict| !c.truth.is_empty() && c.truth.iter().all(|t| t.1 > 3.0);
+    let listing = |c: &Verdict| format!("{} truth {:?} named {:?} rms {:.4} -> {:.4}", c.id, c.truth, c.named, c.rms.0, c.rms.1);
+    let graded: Vec<&Verdict> = v.iter().filter(|c| strong(c)).collect();
+    let wrong: Vec<&&Verdict> = graded
+        .iter()
+        .filter(|c| {
+            let mut t: Vec<&str> = c.truth.iter().map(|t| t.0.as_str()).collect();
+            let mut n: Vec<&str> = c.named.iter().map(|s| s.as_str()).collect();
+            t.sort_unstable();
+            n.sort_unstable();
+            t != n
+        })
+        .collect();
+    let null: Vec<&Verdict> = v.iter().filter(|c| c.truth.is_empty()).collect();
+    let false_alarms: Vec<&&Verdict> = null.iter().filter(|c| !c.named.is_empty()).collect();
+    let not_halved: Vec<&&Verdict> = graded.iter().filter(|c| c.rms.1 > 0.5 * c.rms.0).collect();
+    let pairs: Vec<&&Verdict> = graded.iter().filter(|c| c.truth.len() == 2).collect();
+    let pairs_missed: Vec<&&&Verdict> = pairs.iter().filter(|c| !c.truth.iter().all(|t| c.named.contains(&t.0))).collect();
+    let report = format!(
+        "{domain}: {} graded, {} wrong; {} effect-free, {} false alarms; {} not halved; {} pairs, {} missed\n{}",
+        graded.len(),
+        wrong.len(),
+        null.len(),
+        false_alarms.len(),
+        not_halved.len(),
+        pairs.len(),
+        pairs_missed.len(),
+        wrong
+            .iter()
+            .map(|c| listing(c))
+            .chain(false_alarms.iter().map(|c| listing(c)))
+            .chain(not_halved.iter().map(|c| listing(c)))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    eprintln!("{report}");
+    assert!(graded.len() >= 20 && null.len() >= 8 && !pairs.is_empty(), "set too small: {report}");
+    assert!(wrong.len() as f64 <= 0.05 * graded.len() as f64, "{report}");
+    assert!(false_alarms.len() as f64 <= 0.05 * null.len() as f64, "{report}");
+    assert!(not_halved.len() as f64 <= 0.05 * graded.len() as f64, "{report}");
+    assert!(pairs_missed.is_empty(), "{report}");
+}
+
+#[test]
+fn motion_hidden_set_meets_the_issue_criteria() {
+    let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
+    let verdicts = par(&cases, |c| {
+        let out = motion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
+        let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
+        verdict(&c.answer.id, truth, &out.report)
+    });
+    check_criteria("motion", &verdicts);
+}
+
+#[test]
+fn extrusion_hidden_set_meets_the_issue_criteria() {
+    let cases = ehidden::generate(&ehidden::HiddenConfig::small(3)).expect("generate");
+    let verdicts = par(&cases, |c| {
+        let out = extrusion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
+        let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm3_s / c.answer.noise_sd_mm3_s)).collect();
+        verdict(&c.answer.id, truth, &out.report)
+    });
+    check_criteria("extrusion", &verdicts);
+}
