@@ -8,6 +8,7 @@ pub mod runs;
 pub mod thermal;
 pub mod turns;
 pub mod turns_bench;
+pub mod turns_net;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -5,3 +5,4 @@ mod foundation;
 mod hbot;
 mod pa;
 mod thermal;
+mod turns;

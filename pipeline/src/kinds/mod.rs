@@ -9,13 +9,19 @@ pub mod hbot;
 pub mod pressure_advance;
 pub mod thermal;
 pub mod thermal_grid;
+pub mod turn_prediction;
 
 /// A kind's planner: validates its sections and returns its stages.
 pub type Planner = fn(&SpecFile) -> Result<Vec<Stage>>;
 
 /// Every kind this build knows: name and planner.
-pub const KINDS: &[(&str, Planner)] =
-    &[("thermal-ident", thermal::plan), ("thermal-grid", thermal_grid::plan), ("hbot-taguchi", hbot::plan), ("pressure-advance", pressure_advance::plan)];
+pub const KINDS: &[(&str, Planner)] = &[
+    ("thermal-ident", thermal::plan),
+    ("thermal-grid", thermal_grid::plan),
+    ("hbot-taguchi", hbot::plan),
+    ("pressure-advance", pressure_advance::plan),
+    ("turn-prediction", turn_prediction::plan),
+];
 
 /// The stages of `spec`, after validating its kind-specific sections.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
