@@ -80,6 +80,8 @@ enum ExportCommand {
     Thermal(cmd::thermal::ExportArgs),
     /// K_A model: marlin, klipper, reprap, orca, c-header, json.
     Ka(cmd::pa::ExportKaArgs),
+    /// Turn network: c-header (fixed-size C99, no allocation), json.
+    Turns(cmd::turns_net::ExportTurnsArgs),
 }
 
 fn main() -> ExitCode {
@@ -107,6 +109,7 @@ fn main() -> ExitCode {
         Command::Ka(c) => cmd::pa::ka(c, &ctx),
         Command::Export(ExportCommand::Ka(a)) => cmd::pa::export_cmd(cmd::pa::ExportCommand::Ka(a), &ctx),
         Command::Turns(c) => cmd::turns::turns(c, &ctx),
+        Command::Export(ExportCommand::Turns(a)) => cmd::turns_net::export(a, &ctx),
         Command::Completions { shell } => {
             clap_complete::generate(shell, &mut Cli::command(), "fdmlab", &mut std::io::stdout());
             Ok(())

@@ -9,6 +9,7 @@ pub mod hbot;
 mod plot;
 mod table;
 pub mod thermal;
+pub mod turns;
 
 pub use error::ReportError;
 pub use plot::{LinePlot, Series, SeriesStyle};

@@ -26,6 +26,8 @@ pub enum BenchCommand {
     Discrepancy(super::discrepancy::BenchArgs),
     /// Turn corpus: streaming G-code reader throughput vs a plain Python reader.
     Turns(super::turns_bench::BenchArgs),
+    /// Turn network: training on a million junctions, weight size, C vs burn inference.
+    TurnsTrain(super::turns_net::BenchArgs),
     /// Pressure advance: K_A training on the twin's grid, pattern generation, C inference.
     Pa {
         #[arg(long, default_value_t = 500)]
@@ -44,6 +46,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
         BenchCommand::Thermal(a) => super::thermal::bench(a, ctx),
         BenchCommand::Discrepancy(a) => super::discrepancy::bench(a, ctx),
         BenchCommand::Turns(a) => super::turns_bench::bench(a, ctx),
+        BenchCommand::TurnsTrain(a) => super::turns_net::bench(a, ctx),
         BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
     }
 }

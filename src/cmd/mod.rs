@@ -10,6 +10,7 @@ pub mod thermal;
 pub mod turns;
 pub mod turns_bench;
 pub mod values;
+pub mod turns_net;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

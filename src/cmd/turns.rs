@@ -18,6 +18,12 @@ pub enum TurnsCommand {
     Planner(PlannerArgs),
     /// Score the turn-prediction baselines on a G-code file at horizon H.
     Baselines(BaselinesArgs),
+    /// Train the turn network on G-code files or folders (plain or .gz).
+    Train(super::turns_net::TrainArgs),
+    /// Score the network and every baseline on a G-code file at horizon H (MAE, F1, AUC).
+    Eval(super::turns_net::EvalArgs),
+    /// Write the network's predictions for a G-code file as CSV.
+    Predict(super::turns_net::PredictArgs),
 }
 
 /// Arguments of `fdmlab turns moves`.
@@ -101,6 +107,9 @@ pub fn turns(cmd: TurnsCommand, ctx: &Ctx) -> anyhow::Result<()> {
         TurnsCommand::Moves(a) => moves(a, ctx),
         TurnsCommand::Planner(a) => planner(a, ctx),
         TurnsCommand::Baselines(a) => baselines_cmd(a, ctx),
+        TurnsCommand::Train(a) => super::turns_net::train(a, ctx),
+        TurnsCommand::Eval(a) => super::turns_net::eval(a, ctx),
+        TurnsCommand::Predict(a) => super::turns_net::predict(a, ctx),
     }
 }
 

@@ -9,3 +9,4 @@ mod hbot;
 mod pa;
 mod thermal;
 mod thermal_firmware;
+mod turns;

@@ -86,7 +86,7 @@ impl TrainParams {
 /// Checked training parameters: the only type the trainer accepts. Serialises
 /// exactly as [`TrainParams`]; deserialising re-checks (a stored model with
 /// out-of-range settings is refused).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(into = "TrainParams", try_from = "TrainParams")]
 pub struct ValidTrainParams(TrainParams);
 
@@ -100,12 +100,6 @@ impl TryFrom<TrainParams> for ValidTrainParams {
     type Error = ModelError;
     fn try_from(p: TrainParams) -> Result<Self, ModelError> {
         p.check()
-    }
-}
-
-impl Default for ValidTrainParams {
-    fn default() -> Self {
-        ValidTrainParams(TrainParams::default())
     }
 }
 

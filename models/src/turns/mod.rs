@@ -6,6 +6,11 @@
 //! move `j + 1`, so a path of `n` moves has `n − 1` junctions.
 
 pub mod baselines;
+pub mod contenders;
+pub mod downstream;
+pub mod evaluate;
+pub mod features;
+pub mod net;
 pub mod planner;
 
 use serde::{Deserialize, Serialize};

@@ -10,6 +10,7 @@ pub mod hbot;
 pub mod pressure_advance;
 pub mod thermal;
 pub mod thermal_grid;
+pub mod turn_prediction;
 
 /// A kind's planner: validates its sections and returns its stages.
 pub type Planner = fn(&SpecFile) -> Result<Vec<Stage>>;
@@ -21,6 +22,7 @@ pub const KINDS: &[(&str, Planner)] = &[
     ("hbot-taguchi", hbot::plan),
     ("pressure-advance", pressure_advance::plan),
     ("discrepancy", discrepancy::plan),
+    ("turn-prediction", turn_prediction::plan),
 ];
 
 /// The stages of `spec`, after validating its kind-specific sections.

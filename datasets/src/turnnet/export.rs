@@ -1,0 +1,134 @@
+//! Turn-model exports. `c-header`: a dependency-free C99 header (only
+//! `<math.h>`), fixed-size arrays, no allocation, one function
+//! `fdmlab_turns_predict(x, angle_deg, corner_p)` doing the same f32 forward
+//! pass as burn. `json`: schema `fdmlab.turns-export/1` for daemons. Both take
+//! the raw feature row of `fdmlab_models::turns::features` (computed by the
+//! host from the junctions read so far).
+
+use crate::DatasetError;
+use fdmlab_models::nets::Activation;
+use fdmlab_models::turns::net::TurnModel;
+use std::fmt::Write as _;
+
+/// Export format of `fdmlab export turns`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TurnExportFormat {
+    CHeader,
+    Json,
+}
+
+impl TurnExportFormat {
+    pub fn parse(s: &str) -> Result<Self, DatasetError> {
+        match s {
+            "c-header" => Ok(TurnExportFormat::CHeader),
+            "json" => Ok(TurnExportFormat::Json),
+            other => Err(DatasetError::Refused(format!("unknown turn export format `{other}` (known: c-header, json)"))),
+        }
+    }
+}
+
+/// Render the model; `label` names it in comments (e.g. its hash).
+pub fn export(m: &TurnModel, format: TurnExportFormat, label: &str) -> Result<String, DatasetError> {
+    m.check()?;
+    match format {
+        TurnExportFormat::CHeader => Ok(c_header(m, label)),
+        TurnExportFormat::Json => json(m, label),
+    }
+}
+
+fn c_floats(v: impl Iterator<Item = f32>) -> String {
+    v.map(|x| format!("{x:e}f")).collect::<Vec<_>>().join(", ")
+}
+
+fn c_header(m: &TurnModel, label: &str) -> String {
+    let n = m.feature_names.len();
+    let h = m.task.horizons.len();
+    let mut s = String::new();
+    let _ = writeln!(s, "/* fdmlab turn network ({}): generated, do not edit.", label.replace("*/", "* /"));
+    let _ = writeln!(s, " * Input x[i]: the raw feature row of junction i (fdmlab_models::turns::features), in this order:");
+    for (i, name) in m.feature_names.iter().enumerate() {
+        let _ = writeln!(s, " *   x[{i}] = {name}");
+    }
+    let _ = writeln!(s, " * Output per horizon k (H = {:?}): angle_deg[k], the predicted turn of junction i + H,", m.task.horizons);
+    let _ = writeln!(s, " * and corner_p[k], the probability of a turn > 45 deg within {} mm after it", m.task.corner_window_mm);
+    let _ = writeln!(s, " * (call a corner above FDMLAB_TURNS_THRESHOLD[k]). Weights: {} bytes of float32. */", m.weight_bytes());
+    let _ = writeln!(s, "#ifndef FDMLAB_TURNS_H\n#define FDMLAB_TURNS_H\n#include <math.h>\n");
+    let _ = writeln!(s, "#define FDMLAB_TURNS_INPUTS {n}\n#define FDMLAB_TURNS_HORIZONS {h}");
+    let _ = writeln!(s, "static const int fdmlab_turns_horizon[{h}] = {{{}}};", m.task.horizons.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", "));
+    let _ = writeln!(s, "static const float FDMLAB_TURNS_THRESHOLD[{h}] = {{{}}};", c_floats(m.thresholds.iter().copied()));
+    let priors: Vec<String> = (0..h).map(|k| m.task.prior_index(k).to_string()).collect();
+    let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
+    let _ = writeln!(s, "static const float fdmlab_turns_mean[{n}] = {{{}}};", c_floats(m.mean.iter().copied()));
+    let _ = writeln!(s, "static const float fdmlab_turns_std[{n}] = {{{}}};", c_floats(m.std.iter().copied()));
+    for (i, l) in m.weights.layers.iter().enumerate() {
+        let _ = writeln!(s, "static const float fdmlab_turns_w{i}[{}] = {{{}}};", l.w.len(), c_floats(l.w.iter().copied()));
+        let _ = writeln!(s, "static const float fdmlab_turns_b{i}[{}] = {{{}}};", l.b.len(), c_floats(l.b.iter().copied()));
+    }
+    let widest = m.weights.layers.iter().map(|l| l.outputs.max(l.inputs)).max().unwrap_or(1);
+    let acts = m.activations();
+    let _ = writeln!(s, "\n/* Layer k: y = act(x W + b), W row-major [inputs][outputs]. */");
+    for (i, l) in m.weights.layers.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "static void fdmlab_turns_layer{i}(const float *restrict x, float *restrict y) {{\n  for (int o = 0; o < {no}; ++o) y[o] = fdmlab_turns_b{i}[o];\n  for (int i = 0; i < {ni}; ++i) {{\n    const float xi = x[i];\n    const float *wr = fdmlab_turns_w{i} + i * {no};\n    for (int o = 0; o < {no}; ++o) y[o] += xi * wr[o];\n  }}",
+            no = l.outputs,
+            ni = l.inputs
+        );
+        match acts.get(i) {
+            Some(Activation::Relu) => {
+                let _ = writeln!(s, "  for (int o = 0; o < {}; ++o) y[o] = y[o] > 0.0f ? y[o] : 0.0f;", l.outputs);
+            }
+            Some(Activation::Sigmoid) => {
+                let _ = writeln!(s, "  for (int o = 0; o < {}; ++o) y[o] = 1.0f / (1.0f + expf(-y[o]));", l.outputs);
+            }
+            _ => {}
+        }
+        let _ = writeln!(s, "}}\n");
+    }
+    let _ = writeln!(s, "/* Predict every horizon from one raw feature row; no allocation, fixed sizes. */");
+    let _ = writeln!(
+        s,
+        "static void fdmlab_turns_predict(const float x[FDMLAB_TURNS_INPUTS], float angle_deg[FDMLAB_TURNS_HORIZONS], float corner_p[FDMLAB_TURNS_HORIZONS]) {{"
+    );
+    let _ = writeln!(s, "  float a[{widest}], b[{widest}];");
+    let _ = writeln!(s, "  for (int i = 0; i < FDMLAB_TURNS_INPUTS; ++i) a[i] = (x[i] - fdmlab_turns_mean[i]) / fdmlab_turns_std[i];");
+    let mut from_a = true;
+    for i in 0..m.weights.layers.len() {
+        let (src, dst) = if from_a { ("a", "b") } else { ("b", "a") };
+        let _ = writeln!(s, "  fdmlab_turns_layer{i}({src}, {dst});");
+        from_a = !from_a;
+    }
+    let out = if from_a { "a" } else { "b" };
+    let _ = writeln!(s, "  for (int k = 0; k < FDMLAB_TURNS_HORIZONS; ++k) {{");
+    let _ = writeln!(s, "    float deg = ({out}[2 * k] + x[fdmlab_turns_prior[k]]) * 180.0f;");
+    let _ = writeln!(s, "    angle_deg[k] = deg < 0.0f ? 0.0f : (deg > 180.0f ? 180.0f : deg);");
+    let _ = writeln!(s, "    corner_p[k] = 1.0f / (1.0f + expf(-{out}[2 * k + 1]));\n  }}\n}}\n\n#endif /* FDMLAB_TURNS_H */");
+    s
+}
+
+fn json(m: &TurnModel, label: &str) -> Result<String, DatasetError> {
+    let acts = m.activations();
+    let layers: Vec<serde_json::Value> = m
+        .weights
+        .layers
+        .iter()
+        .zip(&acts)
+        .map(|(l, a)| serde_json::json!({"inputs": l.inputs, "outputs": l.outputs, "activation": a, "w": l.w, "b": l.b}))
+        .collect();
+    let v = serde_json::json!({
+        "schema": "fdmlab.turns-export/1",
+        "model": label,
+        "horizons": m.task.horizons,
+        "corner_deg": fdmlab_models::turns::features::CORNER_DEG,
+        "corner_window_mm": m.task.corner_window_mm,
+        "thresholds": m.thresholds,
+        "columns": m.feature_names,
+        "prior_columns": (0..m.task.horizons.len()).map(|k| m.task.prior_index(k)).collect::<Vec<_>>(),
+        "mean": m.mean,
+        "std": m.std,
+        "layers": layers,
+        "outputs": "per horizon k: angle_deg = clamp((y[2k] + x[prior_columns[k]]) * 180, 0, 180); corner_p = sigmoid(y[2k+1])",
+        "weight_bytes": m.weight_bytes(),
+    });
+    serde_json::to_string_pretty(&v).map(|s| s + "\n").map_err(|e| DatasetError::Refused(e.to_string()))
+}

@@ -1,0 +1,182 @@
+//! What the prediction is for: corners the firmware learns of too late, and
+//! the line width of the extrusion twin around them.
+//!
+//! Model (stated so it can be argued with). The head follows the
+//! full-lookahead plan; at a sharp junction it brakes at `a` from its nominal
+//! speed to the corner speed and accelerates back. Pressure follows the
+//! source's linear model `K·u̇ = v_in − u` (Zimenko 2022; width ∝ u/v) and the
+//! advance adds `K·v̇` to the feed (exact when K_A = K), but the extruder's
+//! acceleration is bounded (`A_e`, Marlin's `DEFAULT_MAX_ACCELERATION` for E),
+//! so each step of `K·v̇` is a ramp that must start half its length before the
+//! speed change — and cannot start before the firmware knows of the corner.
+//! The planner alone knows junction `j` when it enters the buffer
+//! ([`Knowledge::known_from_move`]); with the prediction, a corner the network
+//! called at horizon H is known when junction `j − H` entered it. The defect
+//! of a corner is the twin's `max |w/w_nom − 1|` over the event.
+
+use super::net::HorizonPrediction;
+use super::planner::{Knowledge, Planner};
+use super::{Junction, Move};
+use crate::extrusion::{Conditions, Extruder, Material};
+use serde::{Deserialize, Serialize};
+
+/// Turn above which a junction is sharp, degrees (the corner).
+pub const SHARP_DEG: f64 = 45.0;
+
+/// Extrusion settings of the downstream twin.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Extrusion {
+    /// Pressure time constant K, s (the advance uses K_A = K).
+    pub k_s: f64,
+    /// Extruder acceleration limit in filament mm/s².
+    pub e_accel_mm_s2: f64,
+    /// Filament mm per mm of head travel (line width × layer / filament area).
+    pub e_per_mm: f64,
+}
+
+impl Default for Extrusion {
+    /// PLA at 215 °C, 0.2 mm layers, 0.4 mm nozzle on a Bowden extruder (the
+    /// twin's K, ≈ the source's 0.63 s), an Ender-3's E acceleration limit of
+    /// 5000 mm/s² (Marlin `Configuration.h` for the Ender-3), 0.45 × 0.2 mm lines of 1.75 mm filament.
+    fn default() -> Self {
+        let c = Conditions { material: Material::Pla, extruder: Extruder::Bowden, hotend_c: 215.0, nozzle_setting_mm: 0.4, layer_mm: 0.2 };
+        let area = std::f64::consts::PI * 0.875 * 0.875;
+        Extrusion { k_s: c.true_k_s(), e_accel_mm_s2: 5000.0, e_per_mm: 0.45 * 0.2 / area }
+    }
+}
+
+/// Corners seen too late and line-width error at one horizon.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct Downstream {
+    pub horizon: usize,
+    /// Sharp junctions scored (those with an anchor `j − H` in the file).
+    pub sharp: usize,
+    pub late_planner: usize,
+    pub late_predicted: usize,
+    /// Mean over sharp corners of the twin's width defect `max |w/w_nom − 1|`.
+    pub width_error_planner: f64,
+    pub width_error_predicted: f64,
+}
+
+impl Downstream {
+    /// Pool several files (weighted by their sharp corners).
+    pub fn pool(parts: &[Downstream]) -> Downstream {
+        let sharp: usize = parts.iter().map(|d| d.sharp).sum();
+        let w = |f: &dyn Fn(&Downstream) -> f64| if sharp == 0 { 0.0 } else { parts.iter().map(|d| f(d) * d.sharp as f64).sum::<f64>() / sharp as f64 };
+        Downstream {
+            horizon: parts.first().map_or(0, |d| d.horizon),
+            sharp,
+            late_planner: parts.iter().map(|d| d.late_planner).sum(),
+            late_predicted: parts.iter().map(|d| d.late_predicted).sum(),
+            width_error_planner: w(&|d| d.width_error_planner),
+            width_error_predicted: w(&|d| d.width_error_predicted),
+        }
+    }
+}
+
+/// Width defect of one braking event: cruise at `v_n`, brake at `a` to `v_c`
+/// from t = 0, accelerate back; the advance ramps cannot start before `t_know_s`
+/// (relative to the start of braking, may be negative).
+pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) -> f64 {
+    if !(v_n > v_c && a > 0.0 && v_n > 0.0) {
+        return 0.0;
+    }
+    let k = ex.k_s;
+    let a_e = ex.e_accel_mm_s2 / ex.e_per_mm; // head-equivalent mm/s²
+    let t_b = (v_n - v_c) / a;
+    let head = |t: f64| -> (f64, f64) {
+        if t < 0.0 {
+            (v_n, 0.0)
+        } else if t < t_b {
+            (v_n - a * t, -a)
+        } else if t < 2.0 * t_b {
+            (v_c + a * (t - t_b), a)
+        } else {
+            (v_n, 0.0)
+        }
+    };
+    // Half the ramp of the first step: how far ahead the advance must look.
+    let lead = 0.5 * k * a / a_e;
+    let dt = 1e-4;
+    let (t0, t1) = (-0.05 - lead, 2.0 * t_b + 5.0 * k);
+    let steps = ((t1 - t0) / dt).ceil() as usize;
+    let (mut p, mut u, mut worst) = (0.0f64, v_n, 0.0f64);
+    for s in 0..steps {
+        let t = t0 + s as f64 * dt;
+        // What the advance aims for: K·v̇ `lead` ahead, if the corner is known by now.
+        let target = if t >= t_know_s { k * head(t + lead).1 } else { 0.0 };
+        p += (target - p).clamp(-a_e * dt, a_e * dt);
+        // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
+        let v_in = head(t + 0.5 * dt).0 + p;
+        u = v_in + (u - v_in) * (-dt / k).exp();
+        let v = head(t + dt).0;
+        if v > 1e-9 {
+            worst = worst.max((u / v - 1.0).abs());
+        }
+    }
+    worst
+}
+
+/// Late corners and width error of one file at one horizon, given the network's
+/// predictions at that horizon (anchor `i` flags junction `i + H`).
+pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &HorizonPrediction, ex: &Extrusion) -> Downstream {
+    let h = pred.horizon;
+    let know: Vec<Knowledge> = planner.knowledge(moves);
+    let (_, ideal) = planner.plan(moves);
+    let mut called = vec![false; j.len()];
+    for (k, &i) in pred.anchors.iter().enumerate() {
+        if pred.corner_probability[k] >= pred.threshold && i + h < called.len() {
+            called[i + h] = true;
+        }
+    }
+    let mut d = Downstream { horizon: h, ..Default::default() };
+    let (mut sum_p, mut sum_n) = (0.0, 0.0);
+    for idx in h..j.len().min(know.len()) {
+        if j[idx].turn_deg <= SHARP_DEG {
+            continue;
+        }
+        let kn = &know[idx];
+        let m = &moves[idx];
+        let a = if m.accel_mm_s2 > 0.0 { m.accel_mm_s2.min(planner.params().max_accel_mm_s2) } else { planner.params().max_accel_mm_s2 };
+        let v_n = ideal.blocks[idx].peak_mm_s.max(kn.corner_mm_s);
+        let v_c = kn.corner_mm_s;
+        // Braking starts (full lookahead) `brake` before the junction's time.
+        let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
+        let t_dec = t_junction - (v_n - v_c) / a;
+        let t_known_planner = ideal.blocks[kn.known_from_move].t_start_s;
+        let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(t_known_planner) } else { t_known_planner };
+        d.sharp += 1;
+        d.late_planner += usize::from(kn.too_late);
+        d.late_predicted += usize::from(kn.too_late && t_known_pred >= t_dec);
+        sum_n += corner_defect(v_n, v_c, a, t_known_planner - t_dec, ex);
+        sum_p += corner_defect(v_n, v_c, a, t_known_pred - t_dec, ex);
+    }
+    if d.sharp > 0 {
+        d.width_error_planner = sum_n / d.sharp as f64;
+        d.width_error_predicted = sum_p / d.sharp as f64;
+    }
+    d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn known_in_time_the_advance_cancels_the_lag() {
+        // Known long before braking, the ramped advance leaves only the rate
+        // limit's error; known at the start of braking, the whole first ramp is
+        // late; known after, the error grows with the delay.
+        let ex = Extrusion::default();
+        let early = corner_defect(200.0, 10.0, 1000.0, -1.0, &ex);
+        let at = corner_defect(200.0, 10.0, 1000.0, 0.0, &ex);
+        let late = corner_defect(200.0, 10.0, 1000.0, 0.05, &ex);
+        assert!(early < at && at < late, "{early} {at} {late}");
+        // An instant extruder known in time is the twin's exact advance (K_A = K): no
+        // defect but the midpoint rule's O(dt²) error and the one-step ramp at each kink
+        // (a·dt/v_c = 1000·1e-4/10 = 1 %, bounded below that).
+        let instant = Extrusion { e_accel_mm_s2: 1e12, ..ex };
+        let d = corner_defect(200.0, 10.0, 1000.0, -1.0, &instant);
+        assert!(d < 0.01, "{d}");
+    }
+}

@@ -1,0 +1,307 @@
+//! Kind `turn-prediction`: G-code corpus → junctions → the turn network
+//! (`train`) → the network against every baseline on held-out G-code at each
+//! horizon (`eval`) → C header and JSON (`export`) → report. Also the G-code
+//! reading shared with `fdmlab turns …`.
+
+use crate::error::{Error, Result};
+use crate::spec::{Header, SpecFile};
+use crate::stage::{Stage, StageOutput};
+use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
+use fdmlab_models::nets::{Schedule, TrainParams, ValidTrainParams};
+use fdmlab_models::turns::evaluate::{self, FileEval};
+use fdmlab_models::turns::features::Task;
+use fdmlab_models::turns::net::{self, TurnModel};
+use fdmlab_models::turns::{Junction, Move};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The spec of a `turn-prediction` experiment.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TurnSpec {
+    pub experiment: Header,
+    pub data: DataSection,
+    #[serde(default)]
+    pub task: TaskSection,
+    #[serde(default)]
+    pub model: ModelSection,
+    #[serde(default)]
+    pub export: ExportSection,
+}
+
+/// `[data]`: G-code files or folders (their `*.gcode`), relative to the spec.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataSection {
+    pub train: Vec<String>,
+    /// Held-out G-code (other slicers and printers) the report scores on.
+    pub test: Vec<String>,
+}
+
+/// `[task]`; defaults: H = 16, 32, 64 and a 2 mm corner window.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TaskSection {
+    pub horizons: Vec<usize>,
+    pub corner_window_mm: f64,
+}
+
+impl Default for TaskSection {
+    fn default() -> Self {
+        let t = Task::default();
+        TaskSection { horizons: t.horizons, corner_window_mm: t.corner_window_mm }
+    }
+}
+
+/// `[model]`; defaults are [`net::default_params`], limits those of [`TrainParams`].
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelSection {
+    pub hidden: Vec<usize>,
+    pub epochs: usize,
+    pub batch: usize,
+    pub learning_rate: f64,
+}
+
+impl Default for ModelSection {
+    fn default() -> Self {
+        let p = net::default_params(0);
+        ModelSection { hidden: p.hidden, epochs: p.train.epochs, batch: p.train.batch_size, learning_rate: p.train.learning_rate }
+    }
+}
+
+/// `[export]`: formats of `fdmlab export turns` to store with the run.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExportSection {
+    pub formats: Vec<String>,
+}
+
+impl Default for ExportSection {
+    fn default() -> Self {
+        ExportSection { formats: vec!["c-header".into(), "json".into()] }
+    }
+}
+
+/// Check a task's horizons and corner window.
+pub fn check_task(t: &Task) -> std::result::Result<(), String> {
+    if t.horizons.is_empty() || t.horizons.len() > 8 || t.horizons.iter().any(|&h| h == 0 || h > 1024) {
+        return Err(format!("horizons {:?}: give 1–8 horizons within 1–1024 junctions", t.horizons));
+    }
+    let mut sorted = t.horizons.clone();
+    sorted.dedup();
+    if sorted.len() != t.horizons.len() {
+        return Err(format!("horizons {:?} repeat a value", t.horizons));
+    }
+    if !(t.corner_window_mm.is_finite() && (0.0..=1000.0).contains(&t.corner_window_mm)) {
+        return Err(format!("corner_window_mm {} must be within 0–1000", t.corner_window_mm));
+    }
+    Ok(())
+}
+
+/// `*.gcode` or `*.gcode.gz`.
+fn is_gcode(p: &Path) -> bool {
+    let n = p.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    n.ends_with(".gcode") || n.ends_with(".gcode.gz")
+}
+
+/// G-code files named by `paths`: files as given, folders by their `*.gcode(.gz)`
+/// (sorted by name, not recursive). A missing path or an empty folder is bad input.
+pub fn gcode_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = vec![];
+    for p in paths {
+        if p.is_dir() {
+            let mut found: Vec<PathBuf> =
+                std::fs::read_dir(p).map_err(|e| Error::io(p, e))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|f| f.is_file() && is_gcode(f)).collect();
+            if found.is_empty() {
+                return Err(Error::Input {
+                    file: p.display().to_string(),
+                    line: 0,
+                    column: 0,
+                    key: String::new(),
+                    message: "folder holds no *.gcode or *.gcode.gz".into(),
+                });
+            }
+            found.sort();
+            out.extend(found);
+        } else if p.is_file() {
+            out.push(p.clone());
+        } else {
+            return Err(Error::Input { file: p.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file or folder".into() });
+        }
+    }
+    Ok(out)
+}
+
+/// The moves of G-code bytes, gzipped when they start with the gzip magic
+/// (`file` names it in errors, with the line).
+pub fn moves_of(bytes: &[u8], file: &str) -> Result<Vec<Move>> {
+    Ok(turnnet::moves_of_bytes(bytes, file)?)
+}
+
+/// The junctions of G-code bytes.
+pub fn junctions_of(bytes: &[u8], file: &str) -> Result<Vec<Junction>> {
+    Ok(fdmlab_models::turns::junctions(&moves_of(bytes, file)?))
+}
+
+/// The moves of a G-code file on disk (plain or `.gz`, streamed).
+pub fn read_moves(path: &Path) -> Result<Vec<Move>> {
+    if !path.is_file() {
+        return Err(Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file".into() });
+    }
+    Ok(fdmlab_datasets::turns::read_moves(path)?)
+}
+
+/// Parameters of the `train` stage.
+#[derive(Debug, Clone, Serialize)]
+struct TrainStage {
+    task: Task,
+    settings: ValidTrainParams,
+    files: Vec<String>,
+}
+
+/// Parameters of the `eval` stage.
+#[derive(Debug, Clone, Serialize)]
+struct EvalStage {
+    /// Training files (the kNN baseline's references) and held-out files.
+    train: Vec<String>,
+    files: Vec<String>,
+}
+
+/// Parameters of the `export` stage.
+#[derive(Debug, Clone, Serialize)]
+struct ExportStage {
+    formats: Vec<String>,
+}
+
+/// Relative label of an input file (stable across machines).
+fn label(spec: &SpecFile, p: &Path) -> String {
+    p.strip_prefix(spec.dir()).unwrap_or(p).display().to_string()
+}
+
+fn resolve(spec: &SpecFile, key: &str, items: &[String]) -> Result<Vec<PathBuf>> {
+    if items.is_empty() {
+        return Err(spec.bad_value(key, "name at least one G-code file or folder"));
+    }
+    let paths: Vec<PathBuf> = items.iter().map(|s| spec.dir().join(s)).collect();
+    gcode_files(&paths).map_err(|e| spec.bad_value(key, e.to_string()))
+}
+
+/// The stages of a `turn-prediction` spec.
+pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
+    let s: TurnSpec = spec.parse()?;
+    let task = Task { horizons: s.task.horizons.clone(), corner_window_mm: s.task.corner_window_mm };
+    check_task(&task).map_err(|e| spec.bad_value("task.horizons", e))?;
+    let m = &s.model;
+    let settings = TrainParams {
+        hidden: m.hidden.clone(),
+        train: Schedule { epochs: m.epochs, batch_size: m.batch, learning_rate: m.learning_rate, seed: s.experiment.seed },
+    }
+    .check()
+    .map_err(|e| {
+        let key = match &e {
+            fdmlab_models::ModelError::InvalidParameter { name, .. } if name == "batch_size" => "model.batch".to_string(),
+            fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("model.{name}"),
+            _ => "model".into(),
+        };
+        spec.bad_value(&key, e.to_string())
+    })?;
+    let formats = s.export.formats.iter().map(|f| TurnExportFormat::parse(f).map(|_| f.clone())).collect::<std::result::Result<Vec<_>, _>>();
+    let formats = formats.map_err(|e| spec.bad_value("export.formats", e.to_string()))?;
+    let train_files = resolve(spec, "data.train", &s.data.train)?;
+    let test_files = resolve(spec, "data.test", &s.data.test)?;
+    let train_labels: Vec<String> = train_files.iter().map(|p| label(spec, p)).collect();
+    let test_labels: Vec<String> = test_files.iter().map(|p| label(spec, p)).collect();
+
+    let mut stages = vec![];
+    let tf = train_files.clone();
+    stages.push(
+        Stage::typed("train", 1, TrainStage { task, settings, files: train_labels.clone() }, move |input, p: &TrainStage| {
+            let mut data = vec![];
+            for (path, name) in tf.iter().zip(&p.files) {
+                data.push(junctions_of(&input.file(path)?, name)?);
+            }
+            let model =
+                TurnModel::train(&data, &p.task, &p.settings, &mut |pr| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss)))?;
+            let bpk = model.network()?.to_burnpack(&[])?;
+            Ok(StageOutput::default()
+                .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
+                .add("turn-model.bpk", "application/octet-stream", bpk)
+                .metric("rows", model.rows as f64)
+                .metric("junctions", model.junctions as f64)
+                .metric("weight_bytes", model.weight_bytes() as f64))
+        })?
+        .reading(train_files.clone()),
+    );
+    let tf = test_files.clone();
+    let trf = train_files.clone();
+    let mut eval_files = train_files.clone();
+    eval_files.extend(test_files.iter().cloned());
+    stages.push(
+        Stage::typed("eval", 1, EvalStage { train: train_labels, files: test_labels }, move |input, p: &EvalStage| {
+            let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
+            let mut train = vec![];
+            for (path, name) in trf.iter().zip(&p.train) {
+                train.push(junctions_of(&input.file(path)?, name)?);
+            }
+            let mut data = vec![];
+            for (path, name) in tf.iter().zip(&p.files) {
+                data.push((name.clone(), moves_of(&input.file(path)?, name)?));
+            }
+            let (summary, files) = evaluate::evaluate(&data, &model, &train)?;
+            let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
+            for d in &summary.downstream {
+                out = out
+                    .metric(&format!("late_planner_h{}", d.horizon), d.late_planner as f64)
+                    .metric(&format!("late_predicted_h{}", d.horizon), d.late_predicted as f64)
+                    .metric(&format!("width_error_planner_h{}", d.horizon), d.width_error_planner)
+                    .metric(&format!("width_error_predicted_h{}", d.horizon), d.width_error_predicted);
+            }
+            for h in &summary.horizons {
+                for m in &h.methods {
+                    out = out.metric(&format!("{}_mae_h{}", m.method, h.horizon), m.mae_deg).metric(&format!("{}_f1_h{}", m.method, h.horizon), m.f1);
+                }
+            }
+            Ok(out)
+        })?
+        .after(&["train"])
+        .reading(eval_files),
+    );
+    stages.push(
+        Stage::typed("export", 1, ExportStage { formats }, |input, p: &ExportStage| {
+            let bytes = input.output("train", "turn-model.json")?;
+            let model = turnnet::model_from_json(&bytes, "turn-model.json")?;
+            let label = format!("model {}", &crate::store::Hash::of(&bytes).0[..12]);
+            let mut out = StageOutput::default();
+            for f in &p.formats {
+                let fmt = TurnExportFormat::parse(f)?;
+                let text = turnnet::export::export(&model, fmt, &label)?;
+                let name = match fmt {
+                    TurnExportFormat::CHeader => "fdmlab_turns.h",
+                    TurnExportFormat::Json => "turns-export.json",
+                };
+                out = out.add(name, if name.ends_with(".h") { "text/x-c" } else { "application/json" }, text.into_bytes());
+            }
+            Ok(out)
+        })?
+        .after(&["train"]),
+    );
+    let title = format!("fdmlab {}", s.experiment.name);
+    stages.push(
+        Stage::typed("report", 1, title, |input, title: &String| {
+            let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
+            let summary: evaluate::Summary = input.json("eval", "eval.json")?;
+            let files: Vec<FileEval> = input.json("eval", "files.json")?;
+            let report = fdmlab_reports::turns::report(&fdmlab_reports::turns::TurnsView {
+                title,
+                model: &model,
+                summary: &summary,
+                files: &files,
+                downstream: &summary.downstream,
+            });
+            StageOutput::default().add_report(&report)
+        })?
+        .after(&["train", "eval"]),
+    );
+    Ok(stages)
+}

@@ -1,0 +1,136 @@
+//! Turn prediction rendered as report blocks: predicted vs actual traces, the
+//! metrics table against every baseline at each horizon, corners seen too late,
+//! the downstream line-width comparison and the weight size. Every sentence is
+//! computed from the run's numbers.
+
+use crate::{num, LinePlot, Report, Table};
+use fdmlab_models::turns::downstream::Downstream;
+use fdmlab_models::turns::evaluate::{FileEval, HorizonScores, MethodScore, Summary, NETWORK};
+use fdmlab_models::turns::net::TurnModel;
+
+/// Everything the report shows.
+pub struct TurnsView<'a> {
+    pub title: &'a str,
+    pub model: &'a TurnModel,
+    pub summary: &'a Summary,
+    pub files: &'a [FileEval],
+    /// Per horizon, pooled over the held-out files.
+    pub downstream: &'a [Downstream],
+}
+
+fn best_baseline(h: &HorizonScores, key: impl Fn(&MethodScore) -> f64, lower_is_better: bool) -> Option<&MethodScore> {
+    let mut b: Vec<&MethodScore> = h.methods.iter().filter(|m| m.method != NETWORK && key(m).is_finite()).collect();
+    b.sort_by(|x, y| key(x).total_cmp(&key(y)));
+    if lower_is_better {
+        b.first().copied()
+    } else {
+        b.last().copied()
+    }
+}
+
+fn verdict(h: &HorizonScores) -> String {
+    let Some(net) = h.methods.iter().find(|m| m.method == NETWORK) else { return String::new() };
+    let mut s = format!("At H = {} ({} held-out anchors): ", h.horizon, h.rows);
+    if let Some(b) = best_baseline(h, |m| m.mae_deg, true) {
+        let word = if net.mae_deg < b.mae_deg { "beats" } else { "does not beat" };
+        s += &format!("the network's angle MAE is {}° and {word} the best baseline, {} ({}°); ", num(net.mae_deg, 3), b.method, num(b.mae_deg, 3));
+    }
+    if let Some(b) = best_baseline(h, |m| m.f1, false) {
+        let word = if net.f1 > b.f1 { "beats" } else { "does not beat" };
+        s += &format!("its corner F1 is {} and {word} the best baseline, {} ({}).", num(net.f1, 3), b.method, num(b.f1, 3));
+    }
+    s
+}
+
+/// The report of a `turn-prediction` run.
+pub fn report(v: &TurnsView<'_>) -> Report {
+    let mut r = Report::new(v.title);
+    let m = v.model;
+    r.paragraph(format!(
+        "The network was trained on {} junctions ({} training anchors) and scored on {} held-out junctions in {} file(s). It has {} hidden layers of widths {:?}; its weights, biases and input standardisation take {} bytes as float32{}.",
+        m.junctions,
+        m.rows,
+        v.summary.junctions,
+        v.summary.files,
+        m.params.hidden().len(),
+        m.params.hidden(),
+        m.weight_bytes(),
+        if m.weight_bytes() < 16 * 1024 { " (under the 16 KB budget)" } else { " (over the 16 KB budget)" }
+    ));
+    r.heading("Metrics against every baseline");
+    let mut t = Table::new("Held-out G-code: angle MAE (degrees), corner F1 and AUC per horizon", ["H", "method", "MAE (°)", "F1", "AUC"]);
+    for h in &v.summary.horizons {
+        for s in &h.methods {
+            t.push([h.horizon.to_string(), s.method.clone(), num(s.mae_deg, 4), num(s.f1, 3), num(s.auc, 3)]);
+        }
+    }
+    r.table(t);
+    for h in &v.summary.horizons {
+        r.paragraph(verdict(h));
+    }
+    let mut per_file = Table::new(
+        "Per held-out file: network vs previous-layer baseline (MAE °, F1)",
+        ["file", "H", "network MAE", "network F1", "previous-layer MAE", "previous-layer F1"],
+    );
+    for f in v.files {
+        for h in &f.horizons {
+            let get = |name: &str| h.methods.iter().find(|m| m.method == name);
+            if let (Some(n), Some(p)) = (get(NETWORK), get(fdmlab_models::turns::contenders::PREVIOUS_LAYER)) {
+                per_file.push([f.file.clone(), h.horizon.to_string(), num(n.mae_deg, 4), num(n.f1, 3), num(p.mae_deg, 4), num(p.f1, 3)]);
+            }
+        }
+    }
+    r.table(per_file);
+    r.heading("Predicted vs actual turns");
+    if let Some(f) = v.files.first() {
+        for tr in &f.traces {
+            if tr.junction.is_empty() {
+                continue;
+            }
+            let pts = |ys: &[f64]| tr.junction.iter().zip(ys).map(|(&x, &y)| (x as f64, y)).collect::<Vec<_>>();
+            let mut p = LinePlot::new(
+                format!("{}: turn at i + {} (junctions {}–{})", f.file, tr.horizon, tr.junction[0], tr.junction[tr.junction.len() - 1]),
+                "junction",
+                "turn (°)",
+            )
+            .line("actual", pts(&tr.actual_deg))
+            .line("network", pts(&tr.predicted_deg));
+            if !tr.previous_layer_deg.is_empty() {
+                p = p.line("previous layer", pts(&tr.previous_layer_deg));
+            }
+            r.plot(p);
+        }
+    }
+    if !v.downstream.is_empty() {
+        r.heading("Corners seen too late, and the line width downstream");
+        let mut t = Table::new(
+            "Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error with pressure compensation driven by the planner's buffer alone vs by the prediction",
+            ["H", "sharp corners", "too late: planner", "too late: with prediction", "width error: planner (%)", "width error: with prediction (%)"],
+        );
+        for d in v.downstream {
+            t.push([
+                d.horizon.to_string(),
+                d.sharp.to_string(),
+                d.late_planner.to_string(),
+                d.late_predicted.to_string(),
+                num(100.0 * d.width_error_planner, 3),
+                num(100.0 * d.width_error_predicted, 3),
+            ]);
+        }
+        r.table(t);
+        for d in v.downstream {
+            let better = d.width_error_predicted < d.width_error_planner;
+            r.paragraph(format!(
+                "At H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The mean absolute line-width error over extruding moves is {}% with the buffer alone and {}% with the prediction, which is {}.",
+                d.horizon,
+                d.late_planner,
+                d.sharp,
+                d.late_predicted,
+                num(100.0 * d.width_error_planner, 3),
+                num(100.0 * d.width_error_predicted, 3),
+                if better { "lower" } else { "not lower" }
+            ));
+        }
+    }
+    r
+}

@@ -1,0 +1,364 @@
+//! The turn network's commands: `fdmlab turns train|eval|predict`, `fdmlab
+//! export turns`, `fdmlab bench turns-train`.
+
+use super::Ctx;
+use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
+use fdmlab_models::turns::evaluate;
+use fdmlab_models::turns::features::Task;
+use fdmlab_models::turns::net::{self, TurnModel};
+use fdmlab_models::turns::{Junction, Move};
+use fdmlab_pipeline::kinds::turn_prediction::{check_task, gcode_files, read_moves};
+use fdmlab_pipeline::runs;
+use fdmlab_pipeline::stage::{Artifact, InputRef};
+use fdmlab_pipeline::store::write_file_atomic;
+use fdmlab_pipeline::{Error, Hash, Store};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `fdmlab turns train`.
+#[derive(clap::Args, Debug)]
+pub struct TrainArgs {
+    /// G-code files or folders (their *.gcode).
+    #[arg(long, num_args = 1.., required = true)]
+    pub gcode: Vec<PathBuf>,
+    /// Horizons H, junctions ahead (default 16,32,64).
+    #[arg(long, value_delimiter = ',')]
+    pub horizons: Option<Vec<usize>>,
+    /// Path after junction i + H in which a corner counts, mm (default 2).
+    #[arg(long)]
+    pub corner_window_mm: Option<f64>,
+    #[command(flatten)]
+    pub train: super::TrainFlags,
+}
+
+/// Arguments of `fdmlab turns eval`.
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    pub file: PathBuf,
+    /// Run id (or prefix), model blob hash, or `latest` (the newest run with a turn model).
+    #[arg(long, default_value = "latest")]
+    pub model: String,
+    #[arg(long, default_value_t = 16)]
+    pub horizon: usize,
+}
+
+/// Arguments of `fdmlab turns predict`.
+#[derive(clap::Args, Debug)]
+pub struct PredictArgs {
+    pub file: PathBuf,
+    #[arg(long, default_value = "latest")]
+    pub model: String,
+    #[arg(long, default_value_t = 16)]
+    pub horizon: usize,
+    /// CSV output: line,predicted_deg,corner_probability.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Arguments of `fdmlab export turns`.
+#[derive(clap::Args, Debug)]
+pub struct ExportTurnsArgs {
+    #[arg(long, default_value = "latest")]
+    pub model: String,
+    /// c-header | json
+    #[arg(long)]
+    pub format: String,
+    /// Output file (default: stdout).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+}
+
+/// Name of the model artifact of turn runs.
+pub const MODEL_ARTIFACT: &str = "turn-model.json";
+
+/// A turn model, its hash and the run that trained it (none for a bare blob hash).
+pub struct Loaded {
+    pub model: TurnModel,
+    pub hash: Hash,
+    pub run: Option<runs::RunRecord>,
+}
+
+/// Resolve `id` (run id or prefix, `latest`, or a blob hash) to a turn model.
+pub fn load_model(store: &Store, id: &str) -> anyhow::Result<Loaded> {
+    let run_model = |r: &runs::RunRecord| r.stages.iter().rev().flat_map(|s| s.outputs.iter()).find(|o| o.name == MODEL_ARTIFACT).map(|o| o.hash.clone());
+    let (hash, run) = if id == "latest" {
+        let all = runs::list(store);
+        let run = all
+            .into_iter()
+            .rev()
+            .find(|r| run_model(r).is_some())
+            .ok_or_else(|| Error::bad_input("no run in the store has a turn model (run `fdmlab turns train` or experiments/turn-prediction.toml)"))?;
+        (run_model(&run).ok_or_else(|| Error::bad_input("no turn model"))?, Some(run))
+    } else {
+        match runs::find_opt(store, id)? {
+            Some(run) => (run_model(&run).ok_or_else(|| Error::bad_input(format!("run {} has no {MODEL_ARTIFACT}", run.id)))?, Some(run)),
+            None => (store.resolve(id)?, None),
+        }
+    };
+    let bytes = store.get(&hash)?;
+    Ok(Loaded { model: turnnet::model_from_json(&bytes, &format!("blob {}", hash.0))?, hash, run })
+}
+
+/// The training G-code of the run that trained a model (the kNN baseline's
+/// references), read back from the store; empty without a run.
+fn training_junctions(store: &Store, run: Option<&runs::RunRecord>) -> anyhow::Result<Vec<Vec<Junction>>> {
+    let mut out = vec![];
+    let Some(run) = run else { return Ok(out) };
+    let Some(stage) = run.stages.iter().find(|s| s.outputs.iter().any(|o| o.name == MODEL_ARTIFACT)) else { return Ok(out) };
+    for i in stage.inputs.iter().filter(|i| i.name.starts_with("file:")) {
+        out.push(fdmlab_pipeline::kinds::turn_prediction::junctions_of(&store.get(&i.hash)?, &i.name)?);
+    }
+    Ok(out)
+}
+
+fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
+    let d = Task::default();
+    let t = Task { horizons: a.horizons.clone().unwrap_or(d.horizons), corner_window_mm: a.corner_window_mm.unwrap_or(d.corner_window_mm) };
+    check_task(&t).map_err(Error::bad_input)?;
+    Ok(t)
+}
+
+/// `fdmlab turns train`
+pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let t0 = Instant::now();
+    let task = task_of(&a)?;
+    let params = a.train.params(net::default_params(a.train.seed))?;
+    let files = gcode_files(&a.gcode)?;
+    let store = ctx.store()?;
+    let mut data = vec![];
+    let mut inputs = vec![];
+    for f in &files {
+        let bytes = super::read_input(f)?;
+        inputs.push(InputRef { name: format!("file:{}", f.display()), hash: store.put(&bytes)? });
+        data.push(fdmlab_pipeline::kinds::turn_prediction::junctions_of(&bytes, &f.display().to_string())?);
+    }
+    let read_s = t0.elapsed().as_secs_f64();
+    let mut bar = super::TrainBar::new(ctx, "turns train", 1, params.epochs());
+    let t1 = Instant::now();
+    let model = TurnModel::train(&data, &task, &params, &mut |p| bar.epoch(p))?;
+    let train_s = t1.elapsed().as_secs_f64();
+    drop(bar);
+    let json = turnnet::model_to_json(&model)?;
+    let bpk = model.network()?.to_burnpack(&[])?;
+    let params_json = serde_json::json!({"gcode": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(), "task": task, "settings": params});
+    let metrics: BTreeMap<String, f64> = [("rows", model.rows as f64), ("junctions", model.junctions as f64), ("weight_bytes", model.weight_bytes() as f64)]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+    let record = runs::record_command(
+        &store,
+        "turns train",
+        params_json,
+        inputs,
+        vec![
+            Artifact { name: MODEL_ARTIFACT.into(), media_type: "application/json".into(), bytes: json.clone() },
+            Artifact { name: "turn-model.bpk".into(), media_type: "application/octet-stream".into(), bytes: bpk },
+        ],
+        metrics,
+        t0.elapsed().as_secs_f64(),
+    )?;
+    let hash = Hash::of(&json).0;
+    let value = serde_json::json!({
+        "run": record.id, "model": hash, "files": files.len(), "junctions": model.junctions, "rows": model.rows,
+        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "read_s": read_s, "train_s": train_s,
+    });
+    ctx.emit(&value, || {
+        format!(
+            "trained on {} junctions of {} file(s) ({} rows) in {train_s:.1} s; horizons {:?}; weights {} bytes\nmodel {} (run {})\n",
+            model.junctions,
+            files.len(),
+            model.rows,
+            task.horizons,
+            model.weight_bytes(),
+            &hash[..12],
+            record.id
+        )
+    });
+    Ok(())
+}
+
+fn one_file(file: &std::path::Path) -> anyhow::Result<(Vec<Move>, Vec<Junction>)> {
+    if !file.is_file() {
+        return Err(Error::Input { file: file.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file".into() }.into());
+    }
+    let moves = read_moves(file)?;
+    let j = fdmlab_models::turns::junctions(&moves);
+    Ok((moves, j))
+}
+
+/// `fdmlab turns eval`
+pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let Loaded { model, hash, run } = load_model(&store, &a.model)?;
+    let slot = model.slot(a.horizon)?;
+    let (_, j) = one_file(&a.file)?;
+    let train = training_junctions(&store, run.as_ref())?;
+    let knn = if train.is_empty() { vec![] } else { fdmlab_models::turns::contenders::fit_knn(&train, &model.task)? };
+    let t = evaluate::truth(&j, &model.task, a.horizon);
+    let (preds, _) = evaluate::predictions(&j, &model, a.horizon, knn.get(slot))?;
+    let scores: Vec<evaluate::MethodScore> = preds.iter().map(|p| evaluate::score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect();
+    let value = serde_json::json!({
+        "file": a.file.display().to_string(), "model": hash.0, "horizon": a.horizon, "junctions": j.len(), "rows": t.angle_deg.len(),
+        "corners": t.corner.iter().filter(|c| **c).count(),
+        "methods": scores.iter().map(|m| serde_json::json!({"method": m.method, "mae_deg": finite(m.mae_deg), "f1": finite(m.f1), "auc": finite(m.auc)})).collect::<Vec<_>>(),
+    });
+    ctx.emit(&value, || {
+        let mut s = format!(
+            "{}: {} junctions, H = {}, {} rows\n  {:<16} {:>9} {:>6} {:>6}\n",
+            a.file.display(),
+            j.len(),
+            a.horizon,
+            t.angle_deg.len(),
+            "method",
+            "MAE (°)",
+            "F1",
+            "AUC"
+        );
+        for m in &scores {
+            let _ = writeln!(s, "  {:<16} {:>9.2} {:>6.3} {:>6.3}", m.method, m.mae_deg, m.f1, m.auc);
+        }
+        s
+    });
+    Ok(())
+}
+
+/// JSON has no NaN: a score without both classes is `null`.
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+/// `fdmlab turns predict`
+pub fn predict(a: PredictArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let Loaded { model, hash, .. } = load_model(&store, &a.model)?;
+    model.slot(a.horizon)?;
+    let (_, j) = one_file(&a.file)?;
+    let p = model.predict(&j, a.horizon)?;
+    let mut csv = String::from("line,predicted_deg,corner_probability\n");
+    for (k, &i) in p.anchors.iter().enumerate() {
+        let _ = writeln!(csv, "{},{},{}", j[i + a.horizon].line, p.angle_deg[k], p.corner_probability[k]);
+    }
+    write_file_atomic(&a.out, csv.as_bytes())?;
+    ctx.emit(&serde_json::json!({"out": a.out.display().to_string(), "rows": p.anchors.len(), "horizon": a.horizon, "model": hash.0}), || {
+        format!("wrote {} predictions (H = {}) to {}\n", p.anchors.len(), a.horizon, a.out.display())
+    });
+    Ok(())
+}
+
+/// `fdmlab export turns`
+pub fn export(a: ExportTurnsArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let store = ctx.store()?;
+    let Loaded { model, hash, .. } = load_model(&store, &a.model)?;
+    let fmt = TurnExportFormat::parse(&a.format)?;
+    let text = turnnet::export::export(&model, fmt, &format!("model {}", &hash.0[..12]))?;
+    match &a.output {
+        Some(p) => {
+            write_file_atomic(p, text.as_bytes())?;
+            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len(), "weight_bytes": model.weight_bytes()}), || {
+                format!("wrote {} ({} bytes of float32 weights)\n", p.display(), model.weight_bytes())
+            });
+        }
+        None => print!("{text}"),
+    }
+    Ok(())
+}
+
+/// Arguments of `fdmlab bench turns-train`.
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// G-code files or folders to train on (repeated until `--junctions` are read).
+    #[arg(long, num_args = 1.., required = true)]
+    pub gcode: Vec<PathBuf>,
+    /// Junctions to train on.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub junctions: usize,
+}
+
+/// `fdmlab bench turns-train`: training time on `--junctions` junctions with the
+/// default settings, weight size, and C inference per junction against burn's
+/// batched inference on the same rows.
+pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    let files = gcode_files(&a.gcode)?;
+    let t = Instant::now();
+    let mut corpus = vec![];
+    for f in &files {
+        corpus.push(fdmlab_models::turns::junctions(&read_moves(f)?));
+    }
+    let read_s = t.elapsed().as_secs_f64();
+    let per_pass: usize = corpus.iter().map(Vec::len).sum();
+    if per_pass == 0 {
+        return Err(Error::bad_input("the G-code holds no junctions").into());
+    }
+    // Repeat the corpus (each copy a separate sequence) up to the requested size.
+    let mut data = vec![];
+    let mut n = 0;
+    'fill: loop {
+        for c in &corpus {
+            if n >= a.junctions {
+                break 'fill;
+            }
+            let take = c.len().min(a.junctions - n);
+            data.push(c[..take].to_vec());
+            n += take;
+        }
+    }
+    let task = Task::default();
+    let params = net::default_params(7).check()?;
+    let mut bar = super::TrainBar::new(ctx, "bench turns-train", 1, params.epochs());
+    let t = Instant::now();
+    let model = TurnModel::train(&data, &task, &params, &mut |p| bar.epoch(p))?;
+    let train_s = t.elapsed().as_secs_f64();
+    drop(bar);
+    // Inference: burn in batches vs the exported C header on the same rows.
+    let sample = &corpus[0];
+    let x = fdmlab_models::turns::features::features(sample, &task);
+    let cols = task.inputs();
+    let t = Instant::now();
+    let p = model.predict(sample, task.horizons[0])?;
+    let burn_us = t.elapsed().as_secs_f64() * 1e6 / p.anchors.len().max(1) as f64;
+    let c_us = c_inference_us(&model, &x[..cols.min(x.len())])?;
+    let value = serde_json::json!({
+        "files": files.len(), "junctions": n, "rows": model.rows, "epochs": params.epochs(), "read_s": read_s, "train_s": train_s,
+        "weight_bytes": model.weight_bytes(), "burn_predict_us_per_junction": burn_us, "c_predict_us_per_junction": c_us,
+        "c_speedup_over_burn": c_us.map(|c| burn_us / c), "threads": std::thread::available_parallelism().map(|p| p.get()).unwrap_or(1),
+    });
+    ctx.emit(&value, || {
+        format!(
+            "training on {n} junctions ({} rows, {} epochs): {train_s:.1} s (corpus of {} file(s) read in {read_s:.2} s)\nweights: {} bytes float32\ninference: burn {burn_us:.3} µs/junction (batched, features included), C header {}\n",
+            model.rows,
+            params.epochs(),
+            files.len(),
+            model.weight_bytes(),
+            c_us.map(|u| format!("{u:.3} µs/junction ({:.1}× burn)", burn_us / u)).unwrap_or_else(|| "not measured (no cc)".into())
+        )
+    });
+    Ok(())
+}
+
+/// Compile the C header with `cc -O2` and time 1e6 predictions of one feature row.
+fn c_inference_us(model: &TurnModel, row: &[f32]) -> anyhow::Result<Option<f64>> {
+    let header = turnnet::export::export(model, TurnExportFormat::CHeader, "bench")?;
+    let dir = super::bench::tempdir()?;
+    std::fs::write(dir.join("fdmlab_turns.h"), header)?;
+    let xs: Vec<String> = row.iter().map(|v| format!("{v:e}f")).collect();
+    let main = format!(
+        "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"fdmlab_turns.h\"\nint main(void) {{\n  float x[FDMLAB_TURNS_INPUTS] = {{{}}};\n  float ang[FDMLAB_TURNS_HORIZONS], cp[FDMLAB_TURNS_HORIZONS];\n  volatile float sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-7f; fdmlab_turns_predict(x, ang, cp); sink += ang[0] + cp[0]; }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e30f;\n}}\n",
+        xs.join(",")
+    );
+    std::fs::write(dir.join("main.c"), main)?;
+    let exe = dir.join("turns-bench");
+    let ok = std::process::Command::new("cc")
+        .args(["-std=c99", "-O2", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.c"))
+        .arg("-lm")
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    let out =
+        if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(out)
+}
