@@ -350,7 +350,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 let cfg: GridConfig =
                     serde_json::from_value(input.params["grid"].clone()).map_err(|e| Error::Stage { stage: "dataset".into(), message: e.to_string() })?;
                 let rows = fdmlab_models::extrusion::grid::generate(&cfg)?;
-                let max = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
+                let max = fdmlab_models::metrics::nan_max(rows.iter().map(|r| (r.k_a - r.k_true).abs()));
                 Ok(StageOutput::default()
                     .add("data.csv", "text/csv", grid::grid_csv(&rows).into_bytes())
                     .add("truth.csv", "text/csv", grid::truth_csv(&rows).into_bytes())
