@@ -84,7 +84,7 @@ pub fn coarse_range(extruder: Extruder) -> (f64, f64, f64) {
 
 /// K values `start, start+step, …, end` (end included within rounding).
 pub fn k_values(start: f64, end: f64, step: f64) -> Vec<f64> {
-    if !(step > 0.0) || end < start {
+    if step.is_nan() || step <= 0.0 || end < start {
         return vec![start];
     }
     let n = ((end - start) / step + 1e-9).floor() as usize;

@@ -149,7 +149,7 @@ pub fn simulate_width(pattern: &LinePattern, k_true_s: f64, k_applied_s: f64, t0
     if !(k_applied_s.is_finite() && k_applied_s >= 0.0) {
         return Err(ModelError::invalid("k_applied_s", k_applied_s, "must be ≥ 0"));
     }
-    if !(dt_s.is_finite() && dt_s > 0.0) || !(t1_s >= t0_s) {
+    if !(dt_s.is_finite() && dt_s > 0.0 && t1_s >= t0_s) {
         return Err(ModelError::invalid("dt_s", dt_s, "must be positive with t1 ≥ t0"));
     }
     // Outflow at each phase start, propagated exactly phase by phase.

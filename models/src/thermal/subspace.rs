@@ -188,7 +188,7 @@ impl Prepared {
         let k_map = &gamma_pinv * l32 * pinv(l22)?;
         let (mut zz, mut xz, mut yx) = (DMatrix::<f64>::zeros(n + m, n + m), DMatrix::<f64>::zeros(n, n + m), DMatrix::<f64>::zeros(1, n));
         let mut w = DVector::<f64>::zeros(p);
-        for s in data.iter().filter(|s| s.y.len() >= 2 * i + 1) {
+        for s in data.iter().filter(|s| s.y.len() > 2 * i) {
             let states: Vec<DVector<f64>> = (0..=s.y.len() - i)
                 .map(|c| {
                     for b in 0..i {
@@ -346,9 +346,9 @@ mod tests {
         let u: Vec<Vec<f64>> = (0..2).map(|_| (0..n).map(|_| if rng.random_bool(0.5) { 1.0 } else { 0.0 }).collect()).collect();
         let mut x = DVector::<f64>::zeros(3);
         let mut y = Vec::with_capacity(n);
-        for k in 0..n {
+        for (u0, u1) in u[0].iter().zip(&u[1]) {
             y.push(c[0] * x[0] + c[1] * x[1] + c[2] * x[2] + 0.01 * (rng.random::<f64>() - 0.5));
-            x = &a * &x + &b * DVector::from_vec(vec![u[0][k], u[1][k]]);
+            x = &a * &x + &b * DVector::from_vec(vec![*u0, *u1]);
         }
         let data = vec![Series { y, u }];
         let prep = prepare(&data, 10).expect("prep");
