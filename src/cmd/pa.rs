@@ -271,7 +271,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
                 files.push((t, csv.as_bytes()));
             }
             write_files_atomic(&files)?;
-            let max_dev = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
+            let max_dev = fdmlab_models::metrics::nan_max(rows.iter().map(|r| (r.k_a - r.k_true).abs()));
             let value = serde_json::json!({"rows": rows.len(), "seed": seed, "output": output.display().to_string(), "max_measurement_error": max_dev});
             ctx.emit(&value, || format!("wrote {} grid rows (seed {seed}) to {}; largest |K_A − K_true| = {max_dev:.4} s\n", rows.len(), output.display()));
             Ok(())
@@ -314,7 +314,7 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
                 return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
             }
             let mut rng = fdmlab_models::rng::seeded(seed, 0);
-            let panel = fdmlab_models::extrusion::Rater::panel(raters, 0.3, 0.5, &mut rng);
+            let panel = fdmlab_models::extrusion::Rater::panel(raters, 0.3, 0.5, &mut rng)?;
             let k: Vec<f64> = m.regions.iter().map(|r| r.k).collect();
             let t = fdmlab_models::extrusion::scoring::simulate_print(&m.line, k_true, &k, &panel, &mut rng)?;
             let names: Vec<String> = (1..=raters).map(|i| format!("rater{i}")).collect();

@@ -372,7 +372,11 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         let hash = Hash::of(&bytes);
         let label = m.model.label();
         metrics.insert(format!("{label}.fit_percent"), m.score.fit_percent);
-        rows.push(json!({"family": m.model.family.name(), "order": m.model.order, "fit_percent": m.score.fit_percent, "rms": m.score.rms_c, "aic": m.score.aic, "model": hash.as_str()}));
+        let mut row = json!({"family": m.model.family.name(), "order": m.model.order, "fit_percent": m.score.fit_percent, "rms": m.score.rms_c, "aic": m.score.aic, "model": hash.as_str()});
+        if !m.model.notes.is_empty() {
+            row["notes"] = json!(m.model.notes);
+        }
+        rows.push(row);
         artifacts.push(Artifact { name: format!("{label}.json"), media_type: "application/json".into(), bytes });
     }
     metrics.insert("max_jitter_fraction".into(), max_jitter);
@@ -384,7 +388,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if !a.verify.is_empty() {
         inputs.extend(store_inputs(&store, &verif_files)?);
         let models: Vec<(String, ThermalModel, f64)> = result.models.iter().map(|m| (m.model.label(), m.model.clone(), m.score.fit_percent)).collect();
-        let cv = crossval::cross_validate(&models, &verif);
+        let cv = crossval::cross_validate(&models, &verif)?;
         cv_text = format!("\nbest generaliser: {}\n", cv.reason);
         artifacts.push(Artifact { name: "cross-validation.json".into(), media_type: "application/json".into(), bytes: serde_json::to_vec_pretty(&cv)? });
         out["cross_validation"] = serde_json::to_value(&cv)?;
@@ -416,6 +420,11 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
                 r["aic"].as_f64().unwrap_or(f64::NAN),
                 &r["model"].as_str().unwrap_or("")[..12.min(r["model"].as_str().unwrap_or("").len())]
             ));
+        }
+        for m in &result.models {
+            for note in &m.model.notes {
+                s.push_str(&format!("{} note: {note}\n", m.model.label()));
+            }
         }
         for f in &result.failures {
             s.push_str(&format!("{}-{} failed: {}\n", f.family.name(), f.order, f.reason));

@@ -119,7 +119,7 @@ mod tests {
         // the same defect curve, only noise differs; the many all-zero lines are ties that cap W).
         let m = manifest();
         let mut rng = fdmlab_models::rng::seeded(3, 0);
-        let raters = Rater::panel(3, 0.3, 0.5, &mut rng);
+        let raters = Rater::panel(3, 0.3, 0.5, &mut rng).expect("panel");
         let k: Vec<f64> = m.regions.iter().map(|r| r.k).collect();
         let t = simulate_print(&LinePattern::default(), 0.63, &k, &raters, &mut rng).expect("simulated");
         let names: Vec<String> = ["ana", "ben", "chloe"].iter().map(|s| s.to_string()).collect();

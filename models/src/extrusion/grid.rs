@@ -84,7 +84,7 @@ pub fn coarse_range(extruder: Extruder) -> (f64, f64, f64) {
 
 /// K values `start, start+step, …, end` (end included within rounding).
 pub fn k_values(start: f64, end: f64, step: f64) -> Vec<f64> {
-    if !(step > 0.0) || end < start {
+    if step.is_nan() || step <= 0.0 || end < start {
         return vec![start];
     }
     let n = ((end - start) / step + 1e-9).floor() as usize;
@@ -113,7 +113,7 @@ pub fn generate(cfg: &GridConfig) -> Result<Vec<GridRow>, ModelError> {
     if cfg.raters == 0 {
         return Err(ModelError::invalid("raters", 0, "need at least one rater"));
     }
-    let raters = Rater::panel(cfg.raters, cfg.rater_bias_sd, cfg.rater_noise_sd, &mut crate::rng::seeded(cfg.seed, 0));
+    let raters = Rater::panel(cfg.raters, cfg.rater_bias_sd, cfg.rater_noise_sd, &mut crate::rng::seeded(cfg.seed, 0))?;
     source_conditions(&cfg.extruders)
         .iter()
         .enumerate()
@@ -142,7 +142,7 @@ mod tests {
         // the two-stage calibration's error is a fraction of the fine step (0.01 s);
         // the bound 0.012 s is 1.2 fine steps, the worst case of 3 raters rounding.
         let cfg = GridConfig::default();
-        let raters = Rater::panel(3, 0.3, 0.5, &mut crate::rng::seeded(7, 0));
+        let raters = Rater::panel(3, 0.3, 0.5, &mut crate::rng::seeded(7, 0)).expect("panel");
         for (i, c) in source_conditions(&[Extruder::Bowden]).iter().filter(|c| c.material == Material::Pla && c.layer_mm == 0.2).enumerate() {
             let b = calibrate(c, &cfg.pattern, &raters, &mut crate::rng::seeded(7, i as u64 + 1));
             let k = b.map(|b| b.k).unwrap_or(f64::NAN);

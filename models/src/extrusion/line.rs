@@ -198,7 +198,11 @@ pub fn line_defect(pattern: &LinePattern, k_true_s: f64, k_applied_s: f64) -> Re
     let (t0, t1) = pattern.fast_window_s();
     let tail = 2.0 / pattern.slow_mm_s;
     let samples = simulate_width(pattern, k_true_s, k_applied_s, t0, t1 + tail, DEFAULT_DT_S)?;
-    Ok(samples.iter().map(|s| (s.width_rel - 1.0).abs()).fold(0.0, f64::max))
+    let defect = crate::metrics::nan_max(samples.iter().map(|s| (s.width_rel - 1.0).abs()));
+    if defect.is_nan() {
+        return Err(ModelError::Numerical(format!("line width is not a number (K = {k_true_s}, K_A = {k_applied_s})")));
+    }
+    Ok(defect)
 }
 
 /// The full width profile of a line (for plots).
@@ -233,8 +237,8 @@ mod tests {
         assert!(d < 1e-12, "defect {d}");
         // Without advance a Bowden line thins on acceleration and bulges on braking.
         let prof = width_profile(&p, 0.6, 0.0).unwrap_or_default();
-        let min = prof.iter().map(|s| s.width_rel).fold(f64::INFINITY, f64::min);
-        let max = prof.iter().map(|s| s.width_rel).fold(0.0, f64::max);
+        let min = crate::metrics::nan_min(prof.iter().map(|s| s.width_rel));
+        let max = crate::metrics::nan_max(prof.iter().map(|s| s.width_rel));
         assert!(min < 0.5 && max > 2.0, "min {min} max {max}");
     }
 

@@ -145,6 +145,10 @@ pub fn screen(base: &HbotParams, params: &[Param], data: &[Measurement], thresho
     let s_base = objective_mm(base, data)?;
     let jobs: Vec<HbotParams> = params.iter().flat_map(|&p| [base.with(p, 0.5 * base.get(p)), base.with(p, 2.0 * base.get(p))]).collect();
     let s: Vec<f64> = par_map(&jobs, |p| objective_mm(p, data)).into_iter().collect::<Result<_, _>>()?;
+    // A NaN objective would drop out of every max/min below and rank as insignificant.
+    if let Some(bad) = std::iter::once(s_base).chain(s.iter().copied()).find(|v| !v.is_finite()) {
+        return Err(ModelError::Numerical(format!("screening objective is {bad} mm: a simulation diverged")));
+    }
     let mut rows: Vec<ScreeningRow> = params
         .iter()
         .enumerate()
@@ -154,7 +158,7 @@ pub fn screen(base: &HbotParams, params: &[Param], data: &[Measurement], thresho
             ScreeningRow { param: p, estimate: base.get(p), s_half_mm: lo, s_base_mm: s_base, s_double_mm: hi, range_mm, rank: 0, significant: false }
         })
         .collect();
-    let max = rows.iter().map(|r| r.range_mm).fold(0.0, f64::max);
+    let max = crate::metrics::nan_max(rows.iter().map(|r| r.range_mm));
     let mut order: Vec<usize> = (0..rows.len()).collect();
     order.sort_by(|&a, &b| rows[b].range_mm.total_cmp(&rows[a].range_mm));
     for (rank, &i) in order.iter().enumerate() {
@@ -325,6 +329,77 @@ mod tests {
         let d = direct_fit(&t.optimum, &free, &data).expect("direct");
         // The direct fit reaches the noise floor (≈ 1.6 µm mean |noise|, < 2.5 µm).
         assert!(d.s_mm < 0.0025 && d.s_mm <= t.confirmation_s_mm, "{} vs {}", d.s_mm, t.confirmation_s_mm);
+    }
+
+    /// The rigid-body combinations a y move sees: with φ1 = y/r = −φ2 the bridge and
+    /// both rotors move as one body of mass m_b + 2J/r², viscous b_b + 2Kt/r² and
+    /// Coulomb Fc_b + 2T0/r.
+    fn y_combinations(p: &HbotParams) -> [f64; 3] {
+        let r2 = p.r_m * p.r_m;
+        [p.m_bridge_kg + 2.0 * p.j_m_kgm2 / r2, p.b_bridge_ns_per_m + 2.0 * p.kt_nms / r2, p.fc_bridge_n + 2.0 * p.t0_nm / p.r_m]
+    }
+
+    #[test]
+    fn direct_fit_recovers_what_the_y_moves_identify_and_no_more() {
+        // Identifiable from y moves: the three rigid-body combinations, hence J_M
+        // (m_bridge is known and fixed), and (see below) T0, Kt and Fc_bridge; not
+        // identifiable: b_bridge, hidden behind the motors' viscous term.
+        let truth = truth();
+        let data = measure(&truth, &source_moves(Axis::Y), &LaserSensor::default(), 11).expect("data");
+        let free = [Param::T0, Param::Kt, Param::JM, Param::BBridge, Param::FcBridge];
+        // Started where the study starts it, near the source's identified values (table 5).
+        let fit = direct_fit(&HbotParams::source_identified(), &free, &data).expect("direct").params;
+        // Cramér–Rao bound at the truth: Fisher information JᵀJ/σ² from central
+        // differences of the residuals (σ² = noise² + resolution²/12), its
+        // pseudo-inverse as the covariance of the 5 parameters, and the delta method
+        // for each combination g(θ): var = ∇gᵀ Σ ∇g.
+        let sensor = LaserSensor::default();
+        let sigma_mm = (sensor.noise_sd_m.powi(2) + sensor.resolution_m.powi(2) / 12.0).sqrt() * 1e3;
+        let theta: Vec<f64> = free.iter().map(|&p| truth.get(p)).collect();
+        let at = |d: &[f64]| free.iter().zip(d).fold(truth, |p, (&f, &v)| p.with(f, v));
+        let columns: Vec<Vec<f64>> = (0..free.len())
+            .map(|j| {
+                let h = 1e-3 * theta[j];
+                let (mut up, mut down) = (theta.clone(), theta.clone());
+                up[j] += h;
+                down[j] -= h;
+                let (ru, rd) = (residuals_mm(&at(&up), &data).expect("r+"), residuals_mm(&at(&down), &data).expect("r-"));
+                ru.iter().zip(&rd).map(|(a, b)| (a - b) / (2.0 * h)).collect()
+            })
+            .collect();
+        let jac = nalgebra::DMatrix::from_fn(columns[0].len(), free.len(), |i, j| columns[j][i]);
+        let cov = (jac.transpose() * &jac).pseudo_inverse(1e-12).expect("pinv") * sigma_mm.powi(2);
+        let grad = |g: &dyn Fn(&HbotParams) -> f64| -> nalgebra::DVector<f64> {
+            nalgebra::DVector::from_fn(free.len(), |j, _| {
+                let h = 1e-6 * theta[j];
+                let mut up = theta.clone();
+                up[j] += h;
+                (g(&at(&up)) - g(&truth)) / h
+            })
+        };
+        let se = |g: &dyn Fn(&HbotParams) -> f64| -> f64 {
+            let d = grad(g);
+            (d.transpose() * &cov * &d)[(0, 0)].max(0.0).sqrt()
+        };
+        let (got, want) = (y_combinations(&fit), y_combinations(&truth));
+        for i in 0..3 {
+            let s = se(&|p: &HbotParams| y_combinations(p)[i]);
+            // 4 standard errors: a two-sided miss of 6e-5 for this fixed seed.
+            assert!((got[i] - want[i]).abs() <= 4.0 * s, "combination {i}: {} vs {} (SE {s})", got[i], want[i]);
+        }
+        let s_j = se(&|p: &HbotParams| p.j_m_kgm2);
+        assert!((fit.j_m_kgm2 - truth.j_m_kgm2).abs() <= 4.0 * s_j, "J_M {} vs {} (SE {s_j})", fit.j_m_kgm2, truth.j_m_kgm2);
+        // The splits between bearing and motor resistance are seen only through belt
+        // stretch and per-coordinate stiction. Kt dominates the viscous sum (2Kt/r² ≈ 355
+        // vs b_bridge ≈ 36 N·s/m), T0 and Fc_bridge separate at the stops: all three within
+        // 4 SE. b_bridge is not identifiable from these moves: its Cramér–Rao spread is
+        // over a fifth of its value (≈ 29 %), so its fitted value is not checked.
+        for p in [Param::T0, Param::Kt, Param::FcBridge] {
+            let s = se(&|q: &HbotParams| q.get(p));
+            assert!((fit.get(p) - truth.get(p)).abs() <= 4.0 * s, "{p:?}: {} vs {} (SE {s})", fit.get(p), truth.get(p));
+        }
+        let s_b = se(&|q: &HbotParams| q.b_bridge_ns_per_m);
+        assert!(s_b > 0.2 * truth.b_bridge_ns_per_m, "b_bridge SE {s_b}: identifiable after all?");
     }
 
     #[test]

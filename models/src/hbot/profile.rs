@@ -174,7 +174,7 @@ mod tests {
             assert!(p.at(t).2.abs() < 1e-3, "acceleration at {t} is {}", p.at(t).2);
         }
         // Peak acceleration equals the limit (1.5·Δv/T by construction).
-        let peak = (0..=n).map(|i| p.at(i as f64 * dt).2.abs()).fold(0.0, f64::max);
+        let peak = crate::metrics::nan_max((0..=n).map(|i| p.at(i as f64 * dt).2.abs()));
         assert!((peak - 1000.0).abs() < 1.0, "peak {peak}");
     }
 

@@ -358,7 +358,133 @@ mod tests {
         let twin = Twin::new(&p).expect("twin");
         let a = twin.simulate(&mv, 1.0, 0.01, 0.2).expect("sim");
         let b = twin.simulate(&mv, 1.0, 0.01, 0.1).expect("sim");
-        let worst = a.y_m.iter().zip(&b.y_m).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        let worst = crate::metrics::max_abs_error(&a.y_m, &b.y_m);
         assert!(worst < 5e-7, "max difference {worst} m");
+    }
+
+    /// Holds both motors at their start angle.
+    struct Hold;
+    impl MotorCommand for Hold {
+        fn belt_m(&self, _t: f64) -> [f64; 2] {
+            [0.0, 0.0]
+        }
+    }
+
+    /// Run the twin's own stepper from a given state with the motors held.
+    fn free_run(twin: &Twin, mut q: [f64; 4], mut v: [f64; 4], duration_s: f64) -> (Vec<[f64; 4]>, Vec<[f64; 4]>, f64) {
+        let (h, _) = twin.step_for(1e-3, DEFAULT_SAFETY);
+        let mut modes = v.map(|vi| if vi == 0.0 { Mode::Stuck } else { Mode::Slipping(vi.signum()) });
+        let (mut qs, mut vs) = (vec![q], vec![v]);
+        for k in 0..(duration_s / h).round() as usize {
+            twin.step(&mut q, &mut v, &mut modes, k as f64 * h, h, &Hold);
+            qs.push(q);
+            vs.push(v);
+        }
+        (qs, vs, h)
+    }
+
+    /// Lossless parameters with kL = kR, where the modes separate into an x–φ₊
+    /// and a y–φ₋ pair (φ± = (φ1 ± φ2)/2).
+    fn lossless() -> HbotParams {
+        HbotParams {
+            t0_nm: 0.0,
+            kt_nms: 0.0,
+            b_cart_ns_per_m: 0.0,
+            b_bridge_ns_per_m: 0.0,
+            fc_cart_n: 0.0,
+            fc_bridge_n: 0.0,
+            ..HbotParams::source_identified()
+        }
+    }
+
+    /// ω² of a two-mass pair with M⁻¹K = [[a, −b], [−c, d]]: roots of
+    /// ω⁴ − (a + d)ω² + (ad − bc) = 0.
+    fn pair(a: f64, b: f64, c: f64, d: f64) -> [f64; 2] {
+        let (sum, prod) = (a + d, a * d - b * c);
+        let disc = (sum * sum - 4.0 * prod).sqrt();
+        [(sum - disc) / 2.0, (sum + disc) / 2.0]
+    }
+
+    #[test]
+    fn stiffness_has_the_two_rigid_body_motions_of_the_kinematics_as_null_space() {
+        // Moving the cart by x and the bridge by y while each pulley turns by its
+        // belt's displacement / r (Δs1 = x + y, Δs2 = x − y, the H-Bot kinematics)
+        // stretches no belt: K must vanish on both motions and be positive on the rest.
+        let p = HbotParams::initial_estimate();
+        let twin = Twin::new(&HbotParams { k_r_n_per_m: 1.3e5, ..p }).expect("twin");
+        let k = Matrix4::from_fn(|i, j| twin.stiffness[i][j]);
+        for (x, y) in [(1e-3, 0.0), (0.0, 1e-3), (2e-3, -5e-4)] {
+            let [s1, s2] = motor_from_cartesian(x, y);
+            let q = nalgebra::Vector4::new(x, y, s1 / p.r_m, s2 / p.r_m);
+            // Relative to the size of the terms that cancel (‖K‖‖q‖): rounding only.
+            assert!((k * q).norm() < 1e-14 * k.norm() * q.norm(), "K q = {:?}", k * q);
+        }
+        let mut ev: Vec<f64> = SymmetricEigen::new(k).eigenvalues.iter().copied().collect();
+        ev.sort_by(f64::total_cmp);
+        let scale = ev[3];
+        assert!(ev[0].abs() < 1e-12 * scale && ev[1].abs() < 1e-12 * scale, "rank must be 2: {ev:?}");
+        assert!(ev[2] > 1e-6 * scale, "{ev:?}");
+    }
+
+    #[test]
+    fn modes_match_the_analytic_pairs_and_a_free_vibration_has_their_period() {
+        let p = lossless();
+        let (k, ku, r, j, kd) = (p.k_l_n_per_m, p.k_u_n_per_m, p.r_m, p.j_m_kgm2, p.drive.stiffness_nm_per_rad);
+        // x–φ₊: m x'' = −2k x + 2kr φ₊,  J φ₊'' = kr x − (kr² + kd) φ₊.
+        let x_pair = pair(2.0 * k / p.m_cart_kg, 2.0 * k * r / p.m_cart_kg, k * r / j, (k * r * r + kd) / j);
+        // y–φ₋: m y'' = −(2k + 4ku) y + 2(k + 2ku) r φ₋,  J φ₋'' = (k + 2ku) r y − ((k + 2ku) r² + kd) φ₋.
+        let k2 = k + 2.0 * ku;
+        let y_pair = pair(2.0 * k2 / p.m_bridge_kg, 2.0 * k2 * r / p.m_bridge_kg, k2 * r / j, (k2 * r * r + kd) / j);
+        let mut want: Vec<f64> = x_pair.iter().chain(&y_pair).map(|w2| w2.sqrt()).collect();
+        want.sort_by(f64::total_cmp);
+        let twin = Twin::new(&p).expect("twin");
+        for (got, want) in twin.undamped_modes_rad_s().iter().zip(&want) {
+            assert!((got / want - 1.0).abs() < 1e-9, "{got} vs {want}");
+        }
+        // Start exactly on the slow x–φ₊ eigenvector and time the zero crossings of x.
+        let w2 = x_pair[0];
+        let x0 = 1e-4;
+        let phi = (2.0 * k / p.m_cart_kg - w2) * x0 * p.m_cart_kg / (2.0 * k * r);
+        let period = std::f64::consts::TAU / w2.sqrt();
+        let (qs, _, h) = free_run(&twin, [x0, 0.0, phi, phi], [0.0; 4], 5.5 * period);
+        let ups: Vec<f64> =
+            qs.windows(2).enumerate().filter(|(_, w)| w[0][0] < 0.0 && w[1][0] >= 0.0).map(|(i, w)| (i as f64 + w[0][0] / (w[0][0] - w[1][0])) * h).collect();
+        assert_eq!(ups.len(), 5, "{ups:?}");
+        let measured = (ups[4] - ups[0]) / 4.0;
+        // The stick/slip switch resets a reversing velocity to zero at the
+        // interpolated turning point; that shifts the phase by at most one step per
+        // reversal, two per period: |ΔT| ≤ 2h.
+        assert!((measured - period).abs() < 2.0 * h, "period {measured} s vs {period} s (h = {h} s)");
+        // A mode shape stays a mode shape: y and φ₋ move only by rounding (the two
+        // rotor rows sum in different orders), 1e-6 of the amplitude at most.
+        let (y_max, split_max) = (crate::metrics::nan_max(qs.iter().map(|q| q[1].abs())), crate::metrics::nan_max(qs.iter().map(|q| (q[2] - q[3]).abs())));
+        assert!(y_max < 1e-6 * x0 && split_max < 1e-6 * phi.abs(), "y {y_max} m, φ1 − φ2 {split_max} rad");
+    }
+
+    #[test]
+    fn coulomb_friction_stops_a_rigid_slide_after_m_v2_over_2f() {
+        // Cart sliding with the belt as one rigid body (pulleys turning at v/r, no
+        // belt stretch), motors free (no drive spring, no motor losses), only the
+        // cart's Coulomb friction Fc: energy balance gives the stop distance
+        // d = m_eff v²/(2 Fc) at t = m_eff v/Fc, with m_eff = m_cart + 2 J/r².
+        let p = HbotParams { j_m_kgm2: 1e-5, fc_cart_n: 5.0, ..lossless() };
+        let mut twin = Twin::new(&p).expect("twin");
+        twin.drive_k = 0.0;
+        let v0 = 0.3;
+        let m_eff = p.m_cart_kg + 2.0 * p.j_m_kgm2 / (p.r_m * p.r_m);
+        let (d, t_stop) = (m_eff * v0 * v0 / (2.0 * p.fc_cart_n), m_eff * v0 / p.fc_cart_n);
+        let (qs, vs, h) = free_run(&twin, [0.0; 4], [v0, 0.0, v0 / p.r_m, v0 / p.r_m], 1.5 * t_stop);
+        let stop = vs.iter().position(|v| v[0] == 0.0).expect("the cart stops");
+        let x_end = qs.last().map(|q| q[0]).unwrap_or(f64::NAN);
+        // The belt between cart and pulleys carries the pulleys' deceleration force
+        // (2J/r²)·Fc/m_eff ≈ 1.7 N, a static stretch of 1.7 N/(kL + kR) = 4 µm that
+        // rings undamped: the cart's end point is within twice that, 10 µm.
+        let ring = 2.0 * (2.0 * p.j_m_kgm2 / (p.r_m * p.r_m)) * p.fc_cart_n / m_eff / (p.k_l_n_per_m + p.k_r_n_per_m);
+        assert!((x_end - d).abs() < ring.max(1e-5), "stopped at {x_end} m, analytic {d} m");
+        // The ringing adds a velocity up to ω_max·ring: the cart's velocity reverses
+        // (and sticks) when the rigid slide has slowed to that, ring·ω_max/Fc·m_eff early.
+        let early = ring * twin.omega_max * m_eff / p.fc_cart_n;
+        assert!((stop as f64 * h - t_stop).abs() < early + h, "stop at {} s, analytic {t_stop} s", stop as f64 * h);
+        assert!(qs[stop..].iter().all(|q| q[0] == qs[stop][0]), "the cart stays stuck once stopped");
     }
 }

@@ -307,7 +307,8 @@ pub fn metrics(time_s: &[f64], y: &[f64], u: &[f64], target: f64, setup: &LoopSe
         }
         None => (None, 0),
     };
-    let peak = if rising { y.iter().copied().fold(f64::NEG_INFINITY, f64::max) - target } else { target - y.iter().copied().fold(f64::INFINITY, f64::min) };
+    // NaN-keeping extremes: a diverged (NaN) sample must not vanish from the metrics.
+    let peak = if rising { crate::metrics::nan_max(y.iter().copied()) - target } else { target - crate::metrics::nan_min(y.iter().copied()) };
     let band = 0.02 * step.abs();
     let settle = match y.iter().rposition(|v| (v - target).abs() > band) {
         None => Some(0.0),
@@ -320,11 +321,17 @@ pub fn metrics(time_s: &[f64], y: &[f64], u: &[f64], target: f64, setup: &LoopSe
         rms_after_reach: rms,
         samples_after_reach: count,
         reach_time_s: reach.map(|k| time_s[k]),
-        overshoot_percent: if step.abs() > 0.0 { (100.0 * peak / step.abs()).max(0.0) } else { 0.0 },
+        overshoot_percent: if peak.is_nan() {
+            f64::NAN
+        } else if step.abs() > 0.0 {
+            (100.0 * peak / step.abs()).max(0.0)
+        } else {
+            0.0
+        },
         settling_time_s: settle,
         effort: u.iter().sum::<f64>() * dt,
         saturated_fraction: if u.is_empty() { 0.0 } else { at_limit as f64 / u.len() as f64 },
-        min_output: y.iter().copied().fold(f64::INFINITY, f64::min),
+        min_output: crate::metrics::nan_min(y.iter().copied()),
     }
 }
 
@@ -492,13 +499,6 @@ mod tests {
         vec![Complex::new(p, 0.0); n]
     }
 
-    /// Distance from each computed pole to the requested repeated pole. An
-    /// n-fold eigenvalue moves by about (ε‖A‖·κ)^{1/n} under a relative
-    /// perturbation ε of the matrix (Wilkinson 1965, ch. 2 §16).
-    fn worst_pole_error(p: &Placement, target: f64) -> f64 {
-        p.closed_loop_poles.iter().map(|z| Complex::new(z[0] - target, z[1]).norm()).fold(0.0, f64::max)
-    }
-
     #[test]
     fn an_overdamped_response_reaches_the_target_band() {
         // y = 100·(1 − e^{−t/50}) never equals 100 but enters the 0.5 % band at
@@ -537,22 +537,92 @@ mod tests {
     }
 
     #[test]
-    fn closed_loop_poles_match_requested_within_conditioning() {
+    fn hessenberg_and_ackermann_give_the_same_gain() {
+        // A single-input placement has one solution L: both methods must find it.
         let (s4, s5) = source_models().expect("models");
         for (ss, p) in [(&s4, -0.015), (&s5, -0.02), (&s4, -0.0831), (&s5, -0.238)] {
             let n = ss.order();
             let hess = place(ss, &repeated(p, n), Some(PlacementMethod::Hessenberg)).expect("hess");
             let ack = place(ss, &repeated(p, n), Some(PlacementMethod::Ackermann)).expect("ack");
-            // Tolerance: (ε·κ(W)·‖A‖)^{1/n} with κ(W) the controllability condition,
-            // times 4 for the eigen-solver's own error. ε·κ ≤ 1.3e-7 for the 5-state.
-            let tol = 4.0 * (f64::EPSILON * hess.controllability_condition * ss.a.norm().max(1.0)).powf(1.0 / n as f64) * p.abs().max(1.0);
-            let (eh, ea) = (worst_pole_error(&hess, p), worst_pole_error(&ack, p));
-            assert!(eh < tol, "hessenberg n={n} p={p}: {eh} vs {tol}");
-            assert!(ea < tol, "ackermann n={n} p={p}: {ea} vs {tol}");
-            // Both compute the same unique SISO gain.
-            let rel = hess.l.iter().zip(&ack.l).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max) / ack.l.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let rel = crate::metrics::max_abs_error(&hess.l, &ack.l) / crate::metrics::nan_max(ack.l.iter().map(|v| v.abs()));
+            // Both carry a relative error of about ε·κ(W) ≤ 1.3e-7 (5-state).
             assert!(rel < 1e-4, "n={n}: L differ by {rel}");
         }
+    }
+
+    /// Characteristic polynomial `det(sI − X)` by Faddeev–LeVerrier (Householder
+    /// 1964, §6.7): `M₁ = I`, `c_{n−k} = −tr(X M_k)/k`, `M_{k+1} = X M_k + c_{n−k} I`;
+    /// monic, highest power first. Needs no eigenvalues, unlike the check it replaces.
+    fn charpoly(x: &DMatrix<f64>) -> Vec<f64> {
+        let n = x.nrows();
+        let mut c = vec![1.0];
+        let mut m = DMatrix::<f64>::identity(n, n);
+        for k in 1..=n {
+            let xm = x * &m;
+            let ck = -xm.trace() / k as f64;
+            c.push(ck);
+            m = xm + DMatrix::identity(n, n) * ck;
+        }
+        c
+    }
+
+    /// `(s − p)ⁿ` expanded by the binomial theorem: `C(n,k)(−p)^k`.
+    fn binomial_poly(p: f64, n: usize) -> Vec<f64> {
+        let mut out = Vec::with_capacity(n + 1);
+        let mut binom = 1.0;
+        for k in 0..=n {
+            out.push(binom * (-p).powi(k as i32));
+            binom = binom * (n - k) as f64 / (k + 1) as f64;
+        }
+        out
+    }
+
+    #[test]
+    fn closed_loop_characteristic_polynomial_is_the_requested_one() {
+        // A repeated pole is an ill-conditioned eigenvalue (it moves as the n-th root
+        // of a perturbation), so comparing poles needs a tolerance larger than the
+        // poles themselves. The coefficients of det(sI − A + BL) depend linearly on
+        // L, so they are compared instead. Bound: L carries a relative error of
+        // about ε·κ(W) (κ(W) the controllability condition), which moves coefficient
+        // k by that fraction of the larger of its open- and closed-loop values; the
+        // Faddeev–LeVerrier evaluation adds k·n·ε·‖A − BL‖^k. Factor 10 for the
+        // constants the bounds leave out.
+        let (s4, s5) = source_models().expect("models");
+        let mut cases: Vec<(StateSpace, f64)> = Vec::new();
+        for (ss, p) in [(&s4, -0.015), (&s5, -0.02), (&s4, -0.0831), (&s5, -0.238)] {
+            cases.push((ss.clone(), p));
+            // The discrete twin at 1 s: z-plane poles e^{p·1 s}.
+            cases.push((ss.c2d(1.0).expect("c2d"), p.exp()));
+        }
+        for (ss, p) in &cases {
+            let n = ss.order();
+            for method in [PlacementMethod::Ackermann, PlacementMethod::Hessenberg] {
+                let placed = place(ss, &repeated(*p, n), Some(method)).expect("place");
+                let cl = &ss.a - &ss.b * DMatrix::from_row_slice(1, n, &placed.l);
+                let (got, want, open) = (charpoly(&cl), binomial_poly(*p, n), charpoly(&ss.a));
+                let norm = cl.norm().max(1.0);
+                for k in 1..=n {
+                    let tol = 10.0
+                        * (f64::EPSILON * placed.controllability_condition * want[k].abs().max(open[k].abs())
+                            + (k * n) as f64 * f64::EPSILON * norm.powi(k as i32));
+                    assert!((got[k] - want[k]).abs() <= tol, "{method:?} n={n} p={p} dt={:?}: c{k} = {} vs {} (tol {tol:.2e})", ss.dt_s, got[k], want[k]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn simc_matches_skogestads_worked_example() {
+        // Skogestad (2003), example E4: g(s) = (−0.3s+1)(0.08s+1) /
+        // ((2s+1)(s+1)(0.4s+1)(0.2s+1)(0.05s+1)³), reduced by the half rule to
+        // k = 1, τ1 = 2.5, θ = 1.47; SIMC PI with τc = θ: Kc = 0.85, τI = 2.5
+        // (printed to two decimals, so ±0.005).
+        let pi = simc_pi(&Fopdt { gain_c: 1.0, tau_s: 2.5, dead_time_s: 1.47 }, 0.01);
+        assert!((pi.kp - 0.85).abs() < 0.005, "{pi:?}");
+        assert!((pi.kp / pi.ki - 2.5).abs() < 0.005 && pi.kd == 0.0, "{pi:?}");
+        // τI = min(τ1, 4(τc + θ)): a slow plant (τ1 = 100, θ = 1) takes the 8θ cap.
+        let slow = simc_pi(&Fopdt { gain_c: 2.0, tau_s: 100.0, dead_time_s: 1.0 }, 0.01);
+        assert!((slow.kp - 25.0).abs() < 1e-12 && (slow.kp / slow.ki - 8.0).abs() < 1e-12, "{slow:?}");
     }
 
     #[test]

@@ -3,6 +3,7 @@
 
 use super::data::Experiment;
 use super::model::ThermalModel;
+use crate::ModelError;
 use serde::{Deserialize, Serialize};
 
 /// The model × experiment table.
@@ -38,7 +39,12 @@ pub struct CrossValidation {
 ///
 /// Rule: the best generaliser has the highest mean verification fit; ties
 /// within 0.1 point go to the higher worst-case fit, then to fewer parameters.
-pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Experiment]) -> CrossValidation {
+/// No model, no verification run, or no model that simulates every
+/// verification run is an error (there is no best to name).
+pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Experiment]) -> Result<CrossValidation, ModelError> {
+    if models.is_empty() || verification.is_empty() {
+        return Err(ModelError::Shape(format!("cross-validation needs models and verification runs ({} and {})", models.len(), verification.len())));
+    }
     let mut fit = Vec::with_capacity(models.len());
     let mut rms = Vec::with_capacity(models.len());
     for (_, m, _) in models {
@@ -63,7 +69,10 @@ pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Ex
             mean[b].total_cmp(&mean[a])
         }
     });
-    let best = order.first().copied().unwrap_or(0);
+    let best = order[0];
+    if !mean[best].is_finite() {
+        return Err(ModelError::Numerical(format!("no model simulates every verification run (all {} diverge on at least one)", models.len())));
+    }
     let reason = match (models.get(best), order.get(1)) {
         (Some((label, _, own)), runner) => {
             let runner = runner.map(|&r| format!("; runner-up {} at {:.2} %", models[r].0, mean[r])).unwrap_or_default();
@@ -78,7 +87,7 @@ pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Ex
         }
         _ => "no model".into(),
     };
-    CrossValidation {
+    Ok(CrossValidation {
         models: models.iter().map(|(l, _, _)| l.clone()).collect(),
         experiments: verification.iter().map(|e| e.name.clone()).collect(),
         fit_percent: fit,
@@ -88,7 +97,7 @@ pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Ex
         worst_fit_percent: worst,
         best,
         reason,
-    }
+    })
 }
 
 #[cfg(test)]
@@ -110,7 +119,7 @@ mod tests {
         let grey = identify(&ident, &IdentOptions { families: vec![Family::Greybox], ..Default::default() }).expect("grey");
         let models: Vec<(String, ThermalModel, f64)> =
             black.models.iter().chain(&grey.models).map(|m| (m.model.label(), m.model.clone(), m.score.fit_percent)).collect();
-        let cv = cross_validate(&models, &verif);
+        let cv = cross_validate(&models, &verif).expect("cross-validation");
         assert_eq!(cv.fit_percent.len(), models.len());
         assert_eq!(cv.experiments.len(), 4);
         assert_eq!(cv.models[cv.best], "greybox-2", "{cv:?}");
@@ -121,5 +130,8 @@ mod tests {
         let g = cv.best;
         assert!(cv.worst_fit_percent[g] > 97.5, "{:?}", cv.fit_percent[g]);
         assert!(cv.reason.contains("greybox-2 has the highest mean fit"));
+        // Nothing to pick from is an error, not index 0 (which a caller once clamped).
+        assert!(cross_validate(&[], &verif).is_err());
+        assert!(cross_validate(&models, &[]).is_err());
     }
 }

@@ -85,7 +85,11 @@ impl FirstOrderPlant {
         let time_s: Vec<f64> = (0..n).map(|i| i as f64 * protocol.dt_s).collect();
         let heater_duty: Vec<f64> = (0..n).map(|i| if i < n_heat { protocol.duty } else { 0.0 }).collect();
         let clean = self.simulate(&heater_duty, protocol.dt_s, self.ambient_c);
-        let normal = Normal::new(0.0, noise.sigma_c.max(0.0)).map_err(|e| ModelError::invalid("sigma_c", noise.sigma_c, &e.to_string()))?;
+        // A negative or NaN σ is refused, not clamped to a noiseless sensor.
+        if !(noise.sigma_c.is_finite() && noise.sigma_c >= 0.0) {
+            return Err(ModelError::invalid("sigma_c", noise.sigma_c, "must be finite and ≥ 0"));
+        }
+        let normal = Normal::new(0.0, noise.sigma_c).map_err(|e| ModelError::invalid("sigma_c", noise.sigma_c, &e.to_string()))?;
         let mut rng = rng::seeded(seed, 1);
         let temperature_c = clean
             .iter()

@@ -40,8 +40,12 @@ pub fn fit(data: &[Series], dt_s: f64, max_dead_time_s: f64) -> Result<Fopdt, Mo
         return Err(ModelError::Shape("FOPDT needs the heater input and ≥ 10 samples per experiment".into()));
     }
     // Start: gain from the largest rise per unit of mean duty, τ a tenth of the record.
-    let peak = data.iter().flat_map(|s| s.y.iter().copied()).fold(0.0, f64::max).max(1.0);
-    let duty = data.iter().flat_map(|s| s.u[0].iter().copied()).fold(0.0, f64::max).max(1e-3);
+    let (peak, duty) =
+        (crate::metrics::nan_max(data.iter().flat_map(|s| s.y.iter().copied())), crate::metrics::nan_max(data.iter().flat_map(|s| s.u[0].iter().copied())));
+    if !(peak.is_finite() && duty.is_finite()) {
+        return Err(ModelError::Shape("FOPDT data hold a value that is not a finite number".into()));
+    }
+    let (peak, duty) = (peak.max(1.0), duty.max(1e-3));
     let length = data.iter().map(|s| s.y.len()).max().unwrap_or(10) as f64 * dt_s;
     let start = ((2.0 * peak / duty).max(1.0), (length / 10.0).max(dt_s));
     let max_d = (max_dead_time_s / dt_s).floor().max(0.0) as usize;

@@ -183,16 +183,18 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
         }
         Family::Arx | Family::Armax | Family::Tf => {
             let max_order = opts.orders.iter().copied().max().unwrap_or(1);
-            // One long-ARX innovations estimate shared by every ARMAX order.
-            let innovations = if family == Family::Armax { arx::innovations(data, (3 * max_order).max(10)).ok() } else { None };
+            // One long-ARX innovations estimate shared by every ARMAX order; when
+            // it fails, every ARMAX order fails with its reason (no other start).
+            let innovations = (family == Family::Armax).then(|| arx::innovations(data, (3 * max_order).max(10)));
             opts.orders
                 .iter()
                 .map(|&n| {
                     let poly = match family {
                         Family::Arx => arx::arx(data, n, n),
                         Family::Armax => match &innovations {
-                            Some(e) => arx::armax_from(data, n, e),
-                            None => arx::armax(data, n),
+                            Some(Ok(e)) => arx::armax_from(data, n, e),
+                            Some(Err(e)) => Err(ModelError::Numerical(format!("no innovations estimate for the ARMAX start (long ARX failed: {e})"))),
+                            None => Err(ModelError::Numerical("ARMAX without innovations".into())),
                         },
                         _ => arx::output_error(data, n, opts.tf_zeros.unwrap_or(n - 1).min(n - 1)),
                     };
@@ -225,15 +227,23 @@ fn fit_family(family: Family, exps: &[Experiment], data: &[Series], dt: f64, nam
                 .map(|&n| {
                     prepared
                         .identify(data, n, method, dt)
-                        .map(|ss| ThermalModel::from_discrete(family, n, inputs.clone(), &ss, n + n * m, names.to_vec()))
+                        .map(|fit| {
+                            let mut model = ThermalModel::from_discrete(family, n, inputs.clone(), &fit.ss, n + n * m, names.to_vec());
+                            if fit.stabilised {
+                                model.notes.push(subspace::STABILISED_NOTE.into());
+                            }
+                            model
+                        })
                         .map_err(|e| fail(family, n, e))
                 })
                 .collect()
         }
         Family::Greybox => {
-            let heater: Vec<Series> = data.iter().map(|s| Series { y: s.y.clone(), u: vec![s.u[0].clone()] }).collect();
-            let start = fopdt::fit(&heater, dt, 0.0).map(|p| (p.gain_c / p.tau_s, 1.0 / p.tau_s)).unwrap_or((0.3, 0.003));
-            vec![greybox::fit(exps, start, opts.near_scale).and_then(|(rates, free)| greybox_model(&rates, free, dt, names)).map_err(|e| fail(family, 2, e))]
+            // Started from the data alone; a failed start is this family's failure.
+            vec![greybox::start_from_data(exps, opts.near_scale, opts.max_dead_time_s)
+                .and_then(|start| greybox::fit(exps, &start))
+                .and_then(|(rates, free)| greybox_model(&rates, free, dt, names))
+                .map_err(|e| fail(family, 2, e))]
         }
     }
 }

@@ -25,8 +25,11 @@ pub fn solve(phi: DMatrix<f64>, y: &DVector<f64>) -> Result<DVector<f64>, ModelE
     let mut qty = y.clone();
     qr.q_tr_mul(&mut qty);
     let rhs = qty.rows(0, cols).into_owned();
-    let diag_max = (0..cols).map(|i| r[(i, i)].abs()).fold(0.0, f64::max);
-    let diag_min = (0..cols).map(|i| r[(i, i)].abs()).fold(f64::INFINITY, f64::min);
+    let diag_max = crate::metrics::nan_max((0..cols).map(|i| r[(i, i)].abs()));
+    let diag_min = crate::metrics::nan_min((0..cols).map(|i| r[(i, i)].abs()));
+    if !(diag_max.is_finite() && diag_min.is_finite()) {
+        return Err(ModelError::Numerical("the regression data hold a value that is not a finite number".into()));
+    }
     let theta = if diag_min > 1e-10 * diag_max {
         r.solve_upper_triangular(&rhs).ok_or_else(|| ModelError::Numerical("singular triangular factor".into()))?
     } else {

@@ -107,6 +107,10 @@ pub struct ThermalModel {
     pub parameters: usize,
     /// Names of the experiments it was fitted on.
     pub trained_on: Vec<String>,
+    /// What the identification did that a reader must know (e.g. a subspace
+    /// `A` forced stable); empty (and absent in JSON) when nothing.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
 }
 
 /// Goodness of a model on data (simulation, not one-step prediction).
@@ -142,6 +146,7 @@ impl ThermalModel {
             physics: None,
             parameters,
             trained_on,
+            notes: Vec::new(),
         }
     }
 

@@ -391,7 +391,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let grid = GridConfig { seed: s.experiment.seed, ..GridConfig::default() };
             stages.push(Stage::typed("dataset", 1, TwinDatasetParams { grid }, |_, p| {
                 let rows = fdmlab_models::extrusion::grid::generate(&p.grid)?;
-                let max = rows.iter().map(|r| (r.k_a - r.k_true).abs()).fold(0.0, f64::max);
+                let max = fdmlab_models::metrics::nan_max(rows.iter().map(|r| (r.k_a - r.k_true).abs()));
                 Ok(StageOutput::default()
                     .add("data.csv", "text/csv", grid::grid_csv(&rows).into_bytes())
                     .add("truth.csv", "text/csv", grid::truth_csv(&rows).into_bytes())

@@ -278,15 +278,17 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let verif: Vec<Experiment> = input.json("grid", "verif.json")?;
             let models: Vec<(String, ThermalModel, f64)> = entries.into_iter().map(|e| (e.label, e.model, e.own_fit_percent)).collect();
-            let cv = crossval::cross_validate(&models, &verif);
-            let best = cv.mean_fit_percent.get(cv.best).copied().unwrap_or(f64::NAN);
+            let cv = crossval::cross_validate(&models, &verif)?;
+            let best = cv.mean_fit_percent[cv.best];
             Ok(StageOutput::default().add_json("crossval.json", &cv)?.metric("best_mean_fit_percent", best))
         })?
         .after(&["identify", "grid"]),
         Stage::typed("control", 1, s.control.clone(), |input, c| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
-            let best = &entries[cv.best.min(entries.len().saturating_sub(1))];
+            let best = entries
+                .get(cv.best)
+                .ok_or_else(|| fdmlab_models::ModelError::Shape(format!("cross-validation picked model {} of {}", cv.best, entries.len())))?;
             let ss = best.model.state_space()?;
             let plant = StateSpace::new(ss.a.clone(), ss.b.columns(0, 1).into_owned(), ss.c.clone(), DMatrix::zeros(1, 1), ss.dt_s)?;
             let dt = plant.dt_s.unwrap_or(1.0);
