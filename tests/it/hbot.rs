@@ -105,7 +105,10 @@ fn hbot_simulate_reproduces_the_source_shortfall_and_writes_files() {
     sb.json(&["hbot", "simulate", "--out", "traj.parquet"]);
     let bytes = std::fs::read(sb.path().join("traj.parquet")).expect("parquet written");
     assert_eq!(&bytes[..4], b"PAR1");
-    assert!(!sb.files().iter().any(|f| f.contains(".tmp")), "{:?}", sb.files());
+    // Staged writes are renamed into place: outside the store only the output is left
+    // (a staged file is `.fdmlab-w…`; the old check looked for `.tmp`, which never exists).
+    let outside: Vec<String> = sb.files().into_iter().filter(|f| !f.starts_with("store/")).collect();
+    assert_eq!(outside, ["traj.parquet"]);
     let out = sb.run(&["hbot", "simulate", "--set", "m_bridge=-1"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
 }

@@ -3,6 +3,7 @@
 mod cache;
 mod cli;
 mod common;
+mod core_models;
 mod discrepancy_domains;
 mod foundation;
 mod hbot;
