@@ -80,7 +80,35 @@ def render(spec, work):
     for k, v in p.items():
         args += ["-D", "%s=%s" % (k, json.dumps(v) if isinstance(v, str) else v)]
     run(args + [SCAD])
+    canonical_stl(out)
     return out
+
+
+def canonical_stl(path):
+    """Sort an ASCII STL's facets (each rotated to start at its least vertex,
+    keeping its winding): OpenSCAD 2021 writes the facets of a union in an order
+    that varies run to run, and the slicers' output follows the order."""
+    facets, cur = [], []
+    with open(path) as f:
+        for line in f:
+            t = line.split()
+            if t[:1] == ["facet"]:
+                cur = [" ".join(t[2:5])]
+            elif t[:1] == ["vertex"]:
+                cur.append(tuple(t[1:4]))
+            elif t[:1] == ["endfacet"]:
+                normal, v = cur[0], cur[1:]
+                k = min(range(3), key=lambda i: [float(c) for c in v[i]])
+                facets.append((v[k:] + v[:k], normal))
+    facets.sort(key=lambda fv: [[float(c) for c in p] for p in fv[0]])
+    with open(path, "w") as f:
+        f.write("solid OpenSCAD_Model\n")
+        for v, normal in facets:
+            f.write("  facet normal %s\n    outer loop\n" % normal)
+            for p in v:
+                f.write("      vertex %s\n" % " ".join(p))
+            f.write("    endloop\n  endfacet\n")
+        f.write("endsolid OpenSCAD_Model\n")
 
 
 # ---------------------------------------------------------------- PrusaSlicer vendor presets
@@ -161,7 +189,8 @@ def prusa_job(stl, out, job, work):
 
 
 def slic3r_job(stl, out, job):
-    args = ["slic3r", "--print-center", "100,100", "--skirts", "1"]
+    # One thread: Slic3r 1.3's threaded slicing can reorder output run to run.
+    args = ["slic3r", "--threads", "1", "--print-center", "100,100", "--skirts", "1"]
     for k, v in job["settings"].items():
         args += ["--" + k, str(v)]
     run(args + ["--output", out, stl])
@@ -316,7 +345,7 @@ def build(out_dir, seed, n_arcs):
         "generator": "scripts/build-turn-corpus.sh → scripts/turn-corpus/build.py v%d" % GENERATOR_VERSION,
         "seed": seed,
         "tools": tools,
-        "reproducibility": "PrusaSlicer runs with --perimeter-generator classic (Arachne varies run to run on curved models); the slicers' date comments are replaced; gzip with mtime 0, no name, level 9",
+        "reproducibility": "PrusaSlicer runs with --perimeter-generator classic (Arachne varies run to run on curved models); Slic3r with --threads 1; OpenSCAD STL facets sorted (unions come out in a varying order); CuraEngine given relative mesh paths (written into ;MESH:); the slicers' date comments are replaced; gzip with mtime 0, no name, level 9",
         "splits": {"train": "PrusaSlicer (vendor presets and hand settings, Marlin/Marlin 2/RepRapFirmware flavours) and Slic3r, synthetic arcs 0..n-2",
                    "test": "CuraEngine on vendor printer definitions from the cura package (another slicer, other printers), the last synthetic arc program"},
         "failures": failures,

@@ -501,8 +501,10 @@ mod tests {
         }
         // G2 to the same end goes the long way round clockwise: −270°.
         check_arc(&read("G1 X10 Y0\nG2 X0 Y10 I-10 J0\n").expect("reads")[1..], (0.0, 0.0), 10.0, -270.0, 0.005);
-        // A negative R asks for the major arc.
-        check_arc(&read("G1 X10 Y0\nG3 X0 Y10 R-10\n").expect("reads")[1..], (0.0, 0.0), 10.0, 270.0, 0.005);
+        // A negative R asks for the major arc: counter-clockwise the long way, about (10, 10).
+        check_arc(&read("G1 X10 Y0\nG3 X0 Y10 R-10\n").expect("reads")[1..], (10.0, 10.0), 10.0, 270.0, 0.005);
+        // A positive R clockwise: the minor arc about (10, 10).
+        check_arc(&read("G1 X10 Y0\nG2 X0 Y10 R10\n").expect("reads")[1..], (10.0, 10.0), 10.0, -90.0, 0.005);
         // I/J with the end at the start: a full circle.
         check_arc(&read("G1 X10 Y0\nG2 X10 Y0 I-10 J0\n").expect("reads")[1..], (0.0, 0.0), 10.0, -360.0, 0.005);
         // Relative mode: the end is relative, the centre offset always is.

@@ -135,6 +135,9 @@ pub fn junction_deviation_v2(turn_deg: f64, jd_mm: f64, accel_mm_s2: f64) -> f64
     if sin_half >= 1.0 - 1e-12 {
         return f64::INFINITY;
     }
+    if sin_half <= 1e-12 {
+        return 0.0; // a reversal (Marlin: cos θ > 0.999999 takes the minimum speed)
+    }
     accel_mm_s2 * jd_mm * sin_half / (1.0 - sin_half)
 }
 
@@ -477,12 +480,16 @@ mod tests {
     #[test]
     fn short_segments_cap_the_speed_at_the_buffer_stopping_distance() {
         // 200 collinear 1 mm blocks at 500 mm/s with 16 blocks: the firmware must be
-        // able to stop within the 15 blocks after the executing one, v = √(2·a·15 mm) =
-        // 173.205 mm/s. Knowing everything, the 200 mm line peaks at √(a·200 mm) = 447.214 mm/s.
+        // able to stop within the 15 blocks after the executing one, so junctions
+        // run at v = √(2·a·15 mm) = 173.205 mm/s, and a block between two such
+        // junctions peaks mid-block at √(v² + a·1 mm) = √31000 = 176.068 mm/s.
+        // Knowing everything, the 200 mm line peaks at √(a·200 mm) = 447.214 mm/s.
         let pts: Vec<(f64, f64)> = (0..=200).map(|i| (f64::from(i), 0.0)).collect();
         let (buf, ideal) = planner(Cornering::JunctionDeviation { jd_mm: 0.013 }, Lookahead::Blocks { n: 16 }).plan(&polyline(&pts, 500.0));
         let top = |p: &Profile| p.blocks.iter().map(|b| b.peak_mm_s).fold(0.0, f64::max);
-        assert!((top(&buf) - 30_000f64.sqrt()).abs() < 1e-9, "{}", top(&buf));
+        let top_junction = |p: &Profile| p.blocks.iter().map(|b| b.exit_mm_s).fold(0.0, f64::max);
+        assert!((top_junction(&buf) - 30_000f64.sqrt()).abs() < 1e-9, "{}", top_junction(&buf));
+        assert!((top(&buf) - 31_000f64.sqrt()).abs() < 1e-9, "{}", top(&buf));
         assert!((top(&ideal) - 200_000f64.sqrt()).abs() < 1e-9);
     }
 
