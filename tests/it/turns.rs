@@ -187,7 +187,7 @@ fn spec_kind_runs_and_latest_finds_its_model() {
     let out = sb.run(&["run", "bad.toml"]);
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("bad.toml:12") && err.contains("model.epochs"), "{err}");
+    assert!(err.contains("bad.toml:11") && err.contains("model.epochs"), "{err}");
 }
 
 #[test]

@@ -51,11 +51,12 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     }
     let _ = writeln!(s, " * Output per horizon k (H = {:?}): angle_deg[k], the predicted turn of junction i + H,", m.task.horizons);
     let _ = writeln!(s, " * and corner_p[k], the probability of a turn > 45 deg within {} mm after it", m.task.corner_window_mm);
-    let _ = writeln!(s, " * (call a corner above FDMLAB_TURNS_THRESHOLD[k]). Weights: {} bytes of float32. */", m.weight_bytes());
+    let _ = writeln!(s, " * (call a corner at or above threshold k of FDMLAB_TURNS_THRESHOLD_LIST). Weights: {} bytes of float32. */", m.weight_bytes());
     let _ = writeln!(s, "#ifndef FDMLAB_TURNS_H\n#define FDMLAB_TURNS_H\n#include <math.h>\n");
     let _ = writeln!(s, "#define FDMLAB_TURNS_INPUTS {n}\n#define FDMLAB_TURNS_HORIZONS {h}");
-    let _ = writeln!(s, "static const int fdmlab_turns_horizon[{h}] = {{{}}};", m.task.horizons.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", "));
-    let _ = writeln!(s, "static const float FDMLAB_TURNS_THRESHOLD[{h}] = {{{}}};", c_floats(m.thresholds.iter().copied()));
+    // Initialisers, not arrays: an unused static array would warn under -Wall.
+    let _ = writeln!(s, "#define FDMLAB_TURNS_HORIZON_LIST {{{}}}", m.task.horizons.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", "));
+    let _ = writeln!(s, "#define FDMLAB_TURNS_THRESHOLD_LIST {{{}}}", c_floats(m.thresholds.iter().copied()));
     let priors: Vec<String> = (0..h).map(|k| m.task.prior_index(k).to_string()).collect();
     let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
     let _ = writeln!(s, "static const float fdmlab_turns_mean[{n}] = {{{}}};", c_floats(m.mean.iter().copied()));
