@@ -1,0 +1,199 @@
+//! End-to-end: the discrepancy workflow on hidden-effect data, the twin's
+//! grid, a real-style PID log, the spec kind and the hidden-data command.
+
+use crate::common::{stderr, Sandbox};
+use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
+use fdmlab_models::discrepancy::thermal::discrepancy;
+use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::thermal::twin::Twin;
+
+/// One case's verdict.
+struct Verdict {
+    truth: Vec<String>,
+    named: Vec<String>,
+    qualifies: bool,
+    rms_before: f64,
+    rms_after: f64,
+}
+
+#[test]
+fn hidden_effects_are_named_and_the_gap_shrinks() {
+    // 20 effect-free logs, 7 effects × 3 magnitudes × 2 noise levels, 21 pairs.
+    let opts = HiddenOptions { samples: 2400, seeds: 1, null_cases: 10, ..Default::default() };
+    let cases = hidden::generate(&Twin::default(), &opts).expect("hidden set");
+    let verdicts: Vec<Verdict> = std::thread::scope(|s| {
+        let chunks: Vec<_> = cases
+            .chunks(cases.len().div_ceil(2))
+            .map(|chunk| {
+                s.spawn(move || {
+                    chunk
+                        .iter()
+                        .map(|c| {
+                            let o = discrepancy(vec![c.data.clone()], None, &SelectOptions::default()).expect("workflow");
+                            let mut named: Vec<String> = o.report.effects.iter().map(|e| e.name.clone()).collect();
+                            named.sort();
+                            let mut truth = c.answer.effects.clone();
+                            truth.sort();
+                            // The criterion: every hidden effect contributes more than 3× the noise RMS.
+                            let qualifies = !truth.is_empty() && c.answer.contribution.values().all(|v| *v > 3.0 * c.answer.noise_c);
+                            Verdict { truth, named, qualifies, rms_before: o.report.before.rms, rms_after: o.report.after.rms }
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        chunks.into_iter().flat_map(|h| h.join().expect("worker")).collect()
+    });
+    let null: Vec<&Verdict> = verdicts.iter().filter(|v| v.truth.is_empty()).collect();
+    let false_named = null.iter().filter(|v| !v.named.is_empty()).count();
+    assert!(null.len() >= 20);
+    // ≤ 5 % of effect-free logs with any effect named.
+    assert!(
+        false_named * 20 <= null.len(),
+        "{false_named} of {} effect-free logs named an effect: {:?}",
+        null.len(),
+        null.iter().map(|v| &v.named).collect::<Vec<_>>()
+    );
+    let qualifying: Vec<&Verdict> = verdicts.iter().filter(|v| v.qualifies).collect();
+    let right = qualifying.iter().filter(|v| v.named == v.truth).count();
+    let wrong: Vec<String> = qualifying.iter().filter(|v| v.named != v.truth).map(|v| format!("{:?} → {:?}", v.truth, v.named)).collect();
+    assert!(qualifying.len() >= 40, "{}", qualifying.len());
+    // ≥ 95 % of cases whose effects exceed 3× noise RMS get exactly the right effects.
+    assert!(right * 100 >= 95 * qualifying.len(), "{right} of {} right; wrong: {wrong:?}", qualifying.len());
+    // Where the effects were named, the residual RMS falls by ≥ 50 %.
+    for v in qualifying.iter().filter(|v| v.named == v.truth) {
+        assert!(v.rms_after <= 0.5 * v.rms_before, "{:?}: {} → {}", v.truth, v.rms_before, v.rms_after);
+    }
+}
+
+#[test]
+fn the_twin_grid_shows_fan_and_head_height_missing_from_the_heater_only_model() {
+    let sb = Sandbox::new();
+    sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "3"]);
+    let v = sb.json(&[
+        "discrepancy",
+        "--domain",
+        "thermal",
+        "--data",
+        "grid/ident-1.csv",
+        "grid/ident-2.csv",
+        "grid/ident-3.csv",
+        "grid/ident-4.csv",
+        "--max-effects",
+        "4",
+        "--report",
+        "rep",
+    ]);
+    let names: Vec<&str> = v["effects"].as_array().expect("effects").iter().map(|e| e["name"].as_str().expect("name")).collect();
+    // The twin's physics has fan loss, near-bed loss and an 8 s thermistor lag; the base has none.
+    assert!(names.contains(&"fan_cooling") && names.contains(&"head_height"), "{names:?}");
+    let fan = v["effects"].as_array().expect("effects").iter().find(|e| e["name"] == "fan_cooling").expect("fan");
+    // Twin: 0.05 W/K over 40 J/K = 1.25e-3 /s; the grid's four step tests pin it within 20 %.
+    let g = fan["parameters"]["fan_loss_1_s"].as_f64().expect("g_fan");
+    assert!((g / 1.25e-3 - 1.0).abs() < 0.2, "{g}");
+    assert!(v["after"]["rms"].as_f64().expect("rms") < 0.5 * v["before"]["rms"].as_f64().expect("rms"), "{v}");
+    let keys: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
+    assert_eq!(keys, ["after", "ambiguous", "before", "effects", "windows"]);
+    let md = std::fs::read_to_string(sb.path().join("rep/report.md")).expect("report");
+    assert!(md.contains("`fan_cooling`") && sb.path().join("rep/plot-1.svg").is_file());
+}
+
+/// An OctoPrint serial log of the PID run: `M106` switches the fan, `T:` reports at 1 s.
+fn octoprint_log() -> String {
+    let e = hidden::pid_fan_log(&Twin::default(), 2400, 210.0, 5).expect("pid log");
+    let mut s = String::from("2024-03-01 12:00:00,000 - Connected to: /dev/ttyUSB0\n");
+    let mut fan_on = false;
+    for k in 0..e.len() {
+        let (sec, ms) = (k, 500);
+        let stamp = |sec: usize, ms: usize| format!("2024-03-01 {:02}:{:02}:{:02},{ms:03}", 12 + sec / 3600, (sec / 60) % 60, sec % 60);
+        if e.fan_duty[k] > 0.5 && !fan_on {
+            // The fan command reaches the printer just before the report of the sample it applies to.
+            s.push_str(&format!("{} - Send: N{k} M106 S255*77\n", stamp(sec.saturating_sub(1), 900)));
+            fan_on = true;
+        }
+        s.push_str(&format!(
+            "{} - Recv:  {}\n",
+            stamp(sec, ms),
+            fdmlab_datasets::thermal::marlin::report_line(e.temperature_c[k], 210.0, e.heater_duty[k], 127.0)
+        ));
+    }
+    s
+}
+
+#[test]
+fn a_real_style_pid_log_names_fan_cooling_first() {
+    let sb = Sandbox::new();
+    sb.write("serial.log", &octoprint_log());
+    let v = sb.json(&["discrepancy", "--domain", "thermal", "--data", "serial.log"]);
+    let first = v["effects"][0]["name"].as_str().unwrap_or("none");
+    assert_eq!(first, "fan_cooling", "{v}");
+}
+
+#[test]
+fn the_spec_kind_runs_and_reads_a_model_of_another_run() {
+    let sb = Sandbox::new();
+    std::fs::create_dir_all(sb.path().join("data")).expect("dir");
+    let data = std::fs::read_to_string(crate::common::experiments().join("discrepancy-data/thermal-pid-fan.csv")).expect("bundled data");
+    sb.write("data/thermal-pid-fan.csv", &data);
+    let spec =
+        std::fs::read_to_string(crate::common::experiments().join("discrepancy-thermal.toml")).expect("bundled spec").replace("discrepancy-data/", "data/");
+    sb.write("a.toml", &spec);
+    sb.ok(&["run", "a.toml"]);
+    let first = sb.json(&["runs", "show", "latest"]);
+    let id = first["id"].as_str().expect("id").to_string();
+    let metric = |r: &serde_json::Value, k: &str| r["stages"][0]["metrics"][k].as_f64().expect(k);
+    assert!(metric(&first, "effects") >= 1.0, "{first}");
+    assert!(sb.path().join(".fdmlab/reports").exists() || sb.store().join("reports").exists());
+    // A second spec starts from the first run's augmented model, named by run id.
+    let second = spec
+        .replace("name = \"discrepancy-thermal\"", "name = \"discrepancy-thermal-2\"")
+        .replace("[read]", &format!("[discrepancy.model]\nrun = \"{id}\"\n\n[read]"));
+    assert!(second.contains("[discrepancy.model]"), "the bundled spec has a [read] section");
+    sb.write("b.toml", &second);
+    sb.ok(&["run", "b.toml"]);
+    let again = sb.json(&["runs", "show", "latest"]);
+    // Same model on the same data: its starting RMS is the first run's final RMS.
+    assert!((metric(&again, "before.rms") / metric(&first, "after.rms") - 1.0).abs() < 1e-9, "{again}");
+    // Naming a run that does not exist is bad input.
+    sb.write("c.toml", &second.replace(&id, "19990101-000000"));
+    let out = sb.run(&["run", "c.toml"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+}
+
+#[test]
+fn hidden_command_keeps_the_answers_apart() {
+    let sb = Sandbox::new();
+    let v = sb.json(&["discrepancy", "hidden", "--domain", "thermal", "--out", "h", "--samples", "300", "--null-cases", "1", "--seeds", "1"]);
+    // 2 noise levels × (1 null + 7 effects × 3 magnitudes) + 21 pairs.
+    assert_eq!(v["cases"], 2 * (1 + 21) + 21);
+    let answers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/answers.json")).expect("answers")).expect("json");
+    let answers = answers.as_array().expect("list");
+    assert_eq!(answers.len(), 64);
+    let manifest: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/manifest.json")).expect("manifest")).expect("json");
+    assert_eq!(manifest["seed"], 11);
+    assert_eq!(manifest["generator"], hidden::GENERATOR);
+    for a in answers {
+        let csv = std::fs::read_to_string(sb.path().join(format!("h/data/{}.csv", a["case"].as_str().expect("case")))).expect("data file");
+        let header = csv.lines().next().expect("header");
+        assert_eq!(header, "time_s,heater_duty,fan_duty,temperature_c,head_height,extrude_mm3_s,ambient_c");
+    }
+}
+
+#[test]
+fn bad_data_is_refused_with_its_location_and_writes_nothing() {
+    let sb = Sandbox::new();
+    sb.write("bad.csv", "time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,22\n1,x,0,22\n2,0.5,0,22\n");
+    let out = sb.run(&["discrepancy", "--domain", "thermal", "--data", "bad.csv", "--report", "rep"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("bad.csv:3"), "{}", stderr(&out));
+    assert!(!sb.path().join("rep").exists());
+    let out = sb.run(&["discrepancy", "--domain", "thermal"]);
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+#[ignore]
+fn write_bundled_data() {
+    let e = hidden::pid_fan_log(&Twin::default(), 2400, 210.0, 5).expect("pid log");
+    std::fs::write(crate::common::experiments().join("discrepancy-data/thermal-pid-fan.csv"), fdmlab_datasets::thermal::csv::write(&e)).expect("write");
+}
