@@ -340,7 +340,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
 /// Compile the C header with `cc -O2` and time 1e6 predictions of one feature row.
 fn c_inference_us(model: &TurnModel, row: &[f32]) -> anyhow::Result<Option<f64>> {
     let header = turnnet::export::export(model, TurnExportFormat::CHeader, "bench")?;
-    let dir = super::bench::tempdir()?;
+    let dir = super::scratch_dir()?;
     std::fs::write(dir.join("fdmlab_turns.h"), header)?;
     let xs: Vec<String> = row.iter().map(|v| format!("{v:e}f")).collect();
     let main = format!(
