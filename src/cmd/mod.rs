@@ -9,8 +9,8 @@ pub mod runs;
 pub mod thermal;
 pub mod turns;
 pub mod turns_bench;
-pub mod values;
 pub mod turns_net;
+pub mod values;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;

@@ -394,7 +394,7 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
         out["cross_validation"] = serde_json::to_value(&cv)?;
     }
     let names = |files: &[(String, String)]| files.iter().map(|(name, _)| name.clone()).collect::<Vec<_>>();
-    let params = json!({"logs": names(&log_files[..]), "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": names(&verif_files), "read": summaries});
+    let params = json!({"logs": names(&log_files), "orders": opts.orders, "inputs": opts.inputs, "families": opts.families, "horizon": opts.horizon, "verify": names(&verif_files)});
     let record = fdmlab_pipeline::runs::record_command(&store, "thermal identify", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
     ctx.emit(&out, || {
