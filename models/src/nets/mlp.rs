@@ -241,7 +241,7 @@ impl Mlp {
 
     /// Predict row-major inputs (`inputs` columns) → row-major outputs.
     pub fn predict(&self, x: &[f32], inputs: usize) -> Result<Vec<f32>, ModelError> {
-        if inputs == 0 || !x.len().is_multiple_of(inputs) {
+        if inputs == 0 || x.len() % inputs != 0 {
             return Err(ModelError::Shape(format!("{} values are not rows of {inputs}", x.len())));
         }
         let Some(first) = self.layers.first() else { return Err(ModelError::Shape("empty network".into())) };

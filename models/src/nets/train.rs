@@ -39,7 +39,7 @@ pub struct Rows<'a> {
 impl Rows<'_> {
     fn len(&self) -> Result<usize, ModelError> {
         let (d, o) = (self.inputs, self.outputs);
-        if d == 0 || o == 0 || !self.x.len().is_multiple_of(d) || self.y.len() != self.x.len() / d * o || self.y.is_empty() {
+        if d == 0 || o == 0 || self.x.len() % d != 0 || self.y.len() != self.x.len() / d * o || self.y.is_empty() {
             return Err(ModelError::Shape(format!("{} inputs and {} targets are not rows of {d} → {o}", self.x.len(), self.y.len())));
         }
         Ok(self.y.len() / o)

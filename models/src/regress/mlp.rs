@@ -69,7 +69,7 @@ impl MlpModel {
     pub fn predict(&self, x: &[f64]) -> Result<Vec<f64>, ModelError> {
         let net = self.net.as_ref().ok_or_else(|| ModelError::Numerical("model not loaded".into()))?;
         let c = self.feature_names.len();
-        if c == 0 || !x.len().is_multiple_of(c) {
+        if c == 0 || x.len() % c != 0 {
             return Err(ModelError::Shape(format!("{} values are not rows of {c}", x.len())));
         }
         let xs: Vec<f32> = x.chunks(c).flat_map(|r| self.x_scale.scale_row(r)).map(|v| v as f32).collect();

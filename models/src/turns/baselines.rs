@@ -86,14 +86,14 @@ pub fn no_turn(j: &[Junction], task: &Task) -> Vec<Prediction> {
 pub fn last_turn(j: &[Junction], task: &Task) -> Vec<Prediction> {
     let mut out = Vec::with_capacity(task.count(j.len()));
     let mut recent_corners = std::collections::VecDeque::new();
-    for i in 0..task.count(j.len()) {
-        if j[i].turn_deg > task.corner_deg {
-            recent_corners.push_back(j[i].dist_mm);
+    for ji in j.iter().take(task.count(j.len())) {
+        if ji.turn_deg > task.corner_deg {
+            recent_corners.push_back(ji.dist_mm);
         }
-        while recent_corners.front().is_some_and(|d| j[i].dist_mm - d > task.window_mm) {
+        while recent_corners.front().is_some_and(|d| ji.dist_mm - d > task.window_mm) {
             recent_corners.pop_front();
         }
-        out.push(Prediction { angle_deg: j[i].turn_deg, corner_prob: if recent_corners.is_empty() { 0.0 } else { 1.0 } });
+        out.push(Prediction { angle_deg: ji.turn_deg, corner_prob: if recent_corners.is_empty() { 0.0 } else { 1.0 } });
     }
     out
 }
@@ -226,9 +226,9 @@ pub fn history_features(j: &[Junction], i: usize, history: usize) -> Option<Vec<
         return None;
     }
     let mut f = Vec::with_capacity(2 * history);
-    for k in i + 1 - history..=i {
-        f.push(j[k].signed_turn_deg / 180.0);
-        f.push(j[k].len_out_mm.ln_1p() / 4.0);
+    for jk in &j[i + 1 - history..=i] {
+        f.push(jk.signed_turn_deg / 180.0);
+        f.push(jk.len_out_mm.ln_1p() / 4.0);
     }
     Some(f)
 }
