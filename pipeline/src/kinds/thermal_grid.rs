@@ -450,6 +450,42 @@ fn report(
         ]);
     }
     r.table(st);
-    r.paragraph("The 4-state M at −0.015 reproduces the source's ≈ 0.0011; the source's ≈ 1.0 for the 5-state model is what its first design's poles (−0.238) give, not −0.02 (M = Π|pᵢ|/N(0) for a SISO loop; see docs/thermal.md).");
+    r.paragraph(source_sentence(source));
     r
+}
+
+/// The sentence comparing the computed source designs' M with the published
+/// values (4-state at −0.015: ≈ 0.0011; 5-state: ≈ 1.0), from this run's numbers.
+fn source_sentence(source: &serde_json::Value) -> String {
+    let m = |model: &str, pole: f64| {
+        source.as_array().into_iter().flatten().find(|d| d["model"] == model && d["pole_s"].as_f64() == Some(pole)).and_then(|d| d["M"].as_f64())
+    };
+    let rel = |v: f64, published: f64| 100.0 * (v - published) / published;
+    let four = match m("4-state", -0.015) {
+        Some(v) => format!("The 4-state M at −0.015 is {v:.4e}, {:+.1} % from the source's ≈ 0.0011", rel(v, 0.0011)),
+        None => "The 4-state design at −0.015 gave no M".to_string(),
+    };
+    let five = match (m("5-state", -0.238), m("5-state", -0.02)) {
+        (Some(a), Some(b)) => format!("the 5-state M is {a:.4e} at −0.238 and {b:.4e} at −0.02, against the source's ≈ 1.0"),
+        _ => "the 5-state designs gave no M".to_string(),
+    };
+    format!("{four}; {five} (M = Π|pᵢ|/N(0) for a SISO loop; see docs/thermal.md).")
+}
+
+#[cfg(test)]
+mod sentence_tests {
+    use super::source_sentence;
+
+    #[test]
+    fn the_source_sentence_states_the_computed_m_not_a_fixed_claim() {
+        let v = serde_json::json!([
+            {"model": "4-state", "pole_s": -0.015, "M": 0.00106},
+            {"model": "5-state", "pole_s": -0.238, "M": 1.02},
+            {"model": "5-state", "pole_s": -0.02, "M": 4.2e-6},
+        ]);
+        let s = source_sentence(&v);
+        // (0.00106 − 0.0011) / 0.0011 = −3.6 %.
+        assert!(s.contains("1.0600e-3") && s.contains("-3.6 %") && s.contains("1.0200e0") && s.contains("4.2000e-6"), "{s}");
+        assert!(source_sentence(&serde_json::json!([])).contains("gave no M"));
+    }
 }
