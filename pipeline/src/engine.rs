@@ -126,7 +126,6 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
             None => {
                 let input = StageInput {
                     seed: spec.header.seed,
-                    params: &stage.params,
                     store,
                     upstream: &upstream,
                     files: &files,

@@ -133,8 +133,6 @@ impl StageOutput {
 pub struct StageInput<'a> {
     /// The spec's seed.
     pub seed: u64,
-    /// This stage's validated parameters.
-    pub params: &'a serde_json::Value,
     pub(crate) store: &'a Store,
     pub(crate) upstream: &'a BTreeMap<String, Vec<OutputRef>>,
     pub(crate) files: &'a BTreeMap<PathBuf, Hash>,
@@ -183,10 +181,6 @@ impl StageInput<'_> {
         if let Some(b) = self.bar {
             b.set_message(format!("{}: {message}", self.stage));
         }
-    }
-    /// This stage's parameters deserialised into `T`.
-    pub fn params<T: DeserializeOwned>(&self) -> Result<T> {
-        serde_json::from_value(self.params.clone()).map_err(|e| Error::Stage { stage: self.stage.to_string(), message: format!("parameters: {e}") })
     }
 }
 
