@@ -77,7 +77,12 @@ fn train_predict_export_on_a_small_table() {
     assert_eq!(names, ["mlp", "median", "linear", "knn"]);
     let run = v["run"].as_str().expect("run id").to_string();
     let p = sb.json(&["ka", "predict", "--model", &run, "--set", "material=PLA,hotend_c=215,layer_mm=0.2"]);
-    assert!(p["k"].as_f64().expect("k").is_finite());
+    // The generating law gives 0.6 · (1 − 0.05) · (1 + 0.3 / 2) = 0.6555 at this row. It is a
+    // training row, so the fit error there stays within the MLP's out-of-fold mean error on
+    // this table (≈ 0.027 at 40 epochs); 0.03 allows that, and a constant or per-material
+    // guess (0.6) misses by 0.055.
+    let k = p["k"].as_f64().expect("k");
+    assert!((k - 0.6555).abs() < 0.03, "k = {k}, generating law 0.6555");
     // Unknown level and missing feature are bad input.
     let out = sb.run(&["ka", "predict", "--model", &run, "--set", "material=TPU,hotend_c=215,layer_mm=0.2"]);
     assert_eq!(out.status.code(), Some(2));
