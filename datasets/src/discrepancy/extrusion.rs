@@ -47,16 +47,15 @@ pub fn to_csv(data: &ExtrusionData) -> String {
     write_columns(&COLUMNS, &[&data.t_s, &data.feed_mm3_s, &data.flow_mm3_s])
 }
 
-/// The files of a hidden-effect set, relative to its folder: `cases/<id>.csv` (data
-/// only) and `answers.json` (the domain, generator, configuration and seed, and per
-/// case its file and answer), so the data can be handed out without the answers.
+/// The files of a hidden-effect set ([`super::hidden_set_files`]).
 pub fn hidden_files(config: &extrusion_hidden::HiddenConfig, cases: &[extrusion_hidden::HiddenCase]) -> Result<Vec<(String, Vec<u8>)>, DatasetError> {
-    let mut files: Vec<(String, Vec<u8>)> = cases.iter().map(|c| (format!("cases/{}.csv", c.answer.id), to_csv(&c.data).into_bytes())).collect();
-    let listed: Vec<serde_json::Value> = cases.iter().map(|c| serde_json::json!({"file": format!("cases/{}.csv", c.answer.id), "answer": c.answer})).collect();
-    let doc = serde_json::json!({"domain": "extrusion", "generator": extrusion_hidden::GENERATOR, "seed": config.seed, "config": config, "cases": listed});
-    let text = serde_json::to_vec_pretty(&doc).map_err(|e| DatasetError::Refused(format!("answers.json: {e}")))?;
-    files.push(("answers.json".to_string(), text));
-    Ok(files)
+    super::hidden_set_files(
+        "extrusion",
+        extrusion_hidden::GENERATOR,
+        config.seed,
+        config,
+        cases.iter().map(|c| (c.answer.id.clone(), to_csv(&c.data), &c.answer)),
+    )
 }
 
 #[cfg(test)]
