@@ -182,3 +182,25 @@ pub fn scratch_dir() -> anyhow::Result<PathBuf> {
     std::fs::create_dir_all(&dir)?;
     Ok(dir)
 }
+
+/// Compile `main_c` beside `header` (saved as `header_name`, which `main_c`
+/// includes) with `cc -std=c99 -O{opt}` in a scratch folder, run it and return
+/// the number it prints; `None` when there is no C compiler or the program fails.
+pub fn time_c_program(header_name: &str, header: impl AsRef<[u8]>, main_c: &str, opt: u8) -> anyhow::Result<Option<f64>> {
+    let dir = scratch_dir()?;
+    std::fs::write(dir.join(header_name), header)?;
+    std::fs::write(dir.join("main.c"), main_c)?;
+    let exe = dir.join("c-bench");
+    let ok = std::process::Command::new("cc")
+        .args(["-std=c99", &format!("-O{opt}"), "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.c"))
+        .arg("-lm")
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    let out =
+        if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(out)
+}

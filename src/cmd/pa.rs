@@ -509,28 +509,13 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
         support: vec![],
     };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
-    let dir = super::scratch_dir()?;
-    std::fs::write(dir.join("ka.h"), header)?;
     let n = tb.design.cols();
     let row: Vec<String> = tb.design.row(0).iter().map(|v| format!("{v:e}")).collect();
     let main = format!(
         "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"ka.h\"\nint main(void) {{\n  double x[{n}] = {{{}}};\n  volatile double sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-9; sink += fdmlab_ka_predict(x); }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e300;\n}}\n",
         row.join(",")
     );
-    std::fs::write(dir.join("main.c"), main)?;
-    let exe = dir.join("ka-bench");
-    let ok = std::process::Command::new("cc")
-        .args(["-std=c99", "-O3", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.c"))
-        .arg("-lm")
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    let out =
-        if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
-    let _ = std::fs::remove_dir_all(&dir);
-    Ok(out)
+    super::time_c_program("ka.h", header, &main, 3)
 }
 
 /// Run the PyTorch script on the same grid and read its training time.

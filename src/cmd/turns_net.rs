@@ -340,25 +340,10 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
 /// Compile the C header with `cc -O2` and time 1e6 predictions of one feature row.
 fn c_inference_us(model: &TurnModel, row: &[f32]) -> anyhow::Result<Option<f64>> {
     let header = turnnet::export::export(model, TurnExportFormat::CHeader, "bench")?;
-    let dir = super::scratch_dir()?;
-    std::fs::write(dir.join("fdmlab_turns.h"), header)?;
     let xs: Vec<String> = row.iter().map(|v| format!("{v:e}f")).collect();
     let main = format!(
         "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"fdmlab_turns.h\"\nint main(void) {{\n  float x[FDMLAB_TURNS_INPUTS] = {{{}}};\n  float ang[FDMLAB_TURNS_HORIZONS], cp[FDMLAB_TURNS_HORIZONS];\n  volatile float sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-7f; fdmlab_turns_predict(x, ang, cp); sink += ang[0] + cp[0]; }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e30f;\n}}\n",
         xs.join(",")
     );
-    std::fs::write(dir.join("main.c"), main)?;
-    let exe = dir.join("turns-bench");
-    let ok = std::process::Command::new("cc")
-        .args(["-std=c99", "-O2", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.c"))
-        .arg("-lm")
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    let out =
-        if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
-    let _ = std::fs::remove_dir_all(&dir);
-    Ok(out)
+    super::time_c_program("fdmlab_turns.h", header, &main, 2)
 }
