@@ -32,8 +32,10 @@ enum Command {
     /// List or show run records.
     #[command(subcommand)]
     Runs(cmd::runs::RunsCommand),
-    /// Parameters, metrics and artifact hashes of two runs side by side.
-    Diff(cmd::runs::DiffArgs),
+    /// Parameters, metrics and artifact hashes of two runs side by side (`--format`: as a comparison report).
+    Diff(cmd::report::DiffArgs),
+    /// Render runs as a report (one run) or a comparison (several runs of one kind): md, html, latex, pdf.
+    Report(cmd::report::ReportArgs),
     /// Re-hash every blob; list corrupt or missing ones (exit 1 if any).
     Verify,
     /// Remove blobs and stage records that no run references.
@@ -95,7 +97,8 @@ fn main() -> ExitCode {
         Command::Run(a) => cmd::run::run(a, &ctx),
         Command::Validate(a) => cmd::run::validate(a, &ctx),
         Command::Runs(c) => cmd::runs::runs(c, &ctx),
-        Command::Diff(a) => cmd::runs::diff(a, &ctx),
+        Command::Diff(a) => cmd::report::diff(a, &ctx),
+        Command::Report(a) => cmd::report::report(a, &ctx),
         Command::Verify => cmd::runs::verify(&ctx),
         Command::Gc => cmd::runs::gc(&ctx),
         Command::Cat(a) => cmd::runs::cat(a, &ctx),

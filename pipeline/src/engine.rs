@@ -182,8 +182,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    let reports_dir = materialise_reports(store, &spec.header.name, &done)?;
-    let record = RunRecord {
+    let mut record = RunRecord {
         id,
         experiment: spec.header.name.clone(),
         kind,
@@ -195,8 +194,9 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
         started_at,
         wall_s: started.elapsed().as_secs_f64(),
         stages: done,
-        reports_dir: reports_dir.map(|p| p.display().to_string()),
+        reports_dir: None,
     };
+    record.reports_dir = materialise_reports(store, &record)?.map(|p| p.display().to_string());
     runs::write_record(store, &record)?;
     write_lock(store, spec, &record)?;
     Ok(record)
@@ -243,14 +243,16 @@ fn write_lock(store: &Store, spec: &SpecFile, record: &RunRecord) -> Result<()> 
     crate::store::write_staged(&store.tmp_dir(), &path, &bytes, WriteKind::Lock)
 }
 
-/// Copy the outputs of the `report` stage to the store's report folder of
-/// the experiment; returns that folder relative to the store root.
-fn materialise_reports(store: &Store, experiment: &str, stages: &[StageRun]) -> Result<Option<PathBuf>> {
-    let Some(report) = stages.iter().find(|s| s.name == "report") else {
+/// Render the run's report (every format, each table and figure with its
+/// provenance) into the store's report folder of the experiment; returns that
+/// folder relative to the store root, `None` when the kind writes no report.
+fn materialise_reports(store: &Store, record: &RunRecord) -> Result<Option<PathBuf>> {
+    if !record.stages.iter().any(|s| s.outputs.iter().any(|o| o.name == crate::report::REPORT_JSON)) {
         return Ok(None);
-    };
-    let files = report.outputs.iter().map(|o| Ok((o.name.clone(), store.get(&o.hash)?))).collect::<Result<Vec<_>>>()?;
-    store.replace_report(experiment, &files).map(Some)
+    }
+    let files = crate::report::render(store, std::slice::from_ref(record), &fdmlab_reports::Format::ALL)?;
+    let files: Vec<(String, Vec<u8>)> = files.into_iter().map(|f| (f.name, f.bytes)).collect();
+    store.replace_report(&record.experiment, &files).map(Some)
 }
 
 fn git_rev(dir: &Path) -> Option<String> {

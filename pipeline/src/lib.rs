@@ -6,7 +6,7 @@
 //! `maintenance` verifies and collects garbage.
 //!
 //! Module dependencies (no cycles): `hash` ← `records` ← `store` ← `runs` ←
-//! `maintenance`; `stage` ← `kinds` ← `engine`.
+//! {`maintenance`, `report`}; `stage` ← `kinds` ← `engine`.
 
 pub mod discrepancy;
 pub mod engine;
@@ -16,6 +16,7 @@ pub mod kinds;
 pub mod maintenance;
 pub mod names;
 pub mod records;
+pub mod report;
 pub mod requests;
 pub mod runs;
 pub mod spec;

@@ -203,20 +203,15 @@ pub fn diff(a: &RunRecord, b: &RunRecord) -> Vec<DiffRow> {
         rows.push(DiffRow { what: what.into(), name, a: va, b: vb, changed });
     };
     let flat = |r: &RunRecord| {
-        let mut params = BTreeMap::new();
-        let mut metrics = BTreeMap::new();
         let mut artifacts = BTreeMap::new();
         let mut keys = BTreeMap::new();
         for s in &r.stages {
             keys.insert(s.name.clone(), s.key.clone());
-            flatten_json(&format!("{}.", s.name), &s.params, &mut params);
-            for (k, v) in &s.metrics {
-                metrics.insert(format!("{}.{k}", s.name), v.to_string());
-            }
             for o in &s.outputs {
                 artifacts.insert(format!("{}/{}", s.name, o.name), o.hash.0.clone());
             }
         }
+        let (params, metrics) = flat_params_metrics(r);
         (keys, params, metrics, artifacts)
     };
     let (ka, pa, ma, aa) = flat(a);
@@ -228,6 +223,19 @@ pub fn diff(a: &RunRecord, b: &RunRecord) -> Vec<DiffRow> {
         }
     }
     rows
+}
+
+/// A run's stage parameters and metrics by dotted name (`stage.key`), as text.
+pub fn flat_params_metrics(r: &RunRecord) -> (BTreeMap<String, String>, BTreeMap<String, String>) {
+    let mut params = BTreeMap::new();
+    let mut metrics = BTreeMap::new();
+    for s in &r.stages {
+        flatten_json(&format!("{}.", s.name), &s.params, &mut params);
+        for (k, v) in &s.metrics {
+            metrics.insert(format!("{}.{k}", s.name), v.to_string());
+        }
+    }
+    (params, metrics)
 }
 
 fn flatten_json(prefix: &str, v: &serde_json::Value, out: &mut BTreeMap<String, String>) {

@@ -119,12 +119,10 @@ impl StageOutput {
         self.metrics.insert(name.to_string(), value);
         self
     }
-    /// Add every file of a rendered report (builder style).
+    /// Add the report as `report.json`; runs render it with its provenance (builder style).
     pub fn add_report(mut self, report: &fdmlab_reports::Report) -> Result<Self> {
-        let files = report.render().map_err(|e| Error::Stage { stage: "report".into(), message: e.to_string() })?;
-        for f in files {
-            self.artifacts.push(Artifact { name: f.name, media_type: f.media_type.to_string(), bytes: f.bytes });
-        }
+        let bytes = serde_json::to_vec_pretty(report).map_err(|e| Error::Stage { stage: "report".into(), message: e.to_string() })?;
+        self.artifacts.push(Artifact { name: crate::report::REPORT_JSON.into(), media_type: "application/json".into(), bytes });
         Ok(self)
     }
 }

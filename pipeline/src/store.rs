@@ -247,6 +247,16 @@ impl Store {
         Path::new(REPORTS).join(experiment)
     }
 
+    /// The folder holding every experiment's report folder (and the index).
+    pub fn reports_dir(&self) -> PathBuf {
+        self.root.join(REPORTS)
+    }
+
+    /// Folder `experiment`'s report lives in, relative to [`Store::reports_dir`].
+    pub fn report_dir_in_reports(experiment: &str) -> PathBuf {
+        PathBuf::from(experiment)
+    }
+
     /// Replace the report folder of `experiment` by `files` (name, bytes),
     /// swapped in by rename so readers never see a half-written report.
     /// Returns the folder relative to the store root.

@@ -103,40 +103,109 @@ impl LinePlot {
 
     /// Render to an SVG document (800 × 500 px).
     pub fn to_svg(&self) -> Result<String, ReportError> {
-        let err = |e: &dyn std::fmt::Display| ReportError::Plot { plot: self.title.clone(), message: e.to_string() };
-        let ((x0, x1), (y0, y1)) = self.ranges();
         let mut svg = String::new();
-        {
-            let root = SVGBackend::with_string(&mut svg, (800, 500)).into_drawing_area();
-            root.fill(&WHITE).map_err(|e| err(&e))?;
-            let mut chart = ChartBuilder::on(&root)
-                .caption(&self.title, ("sans-serif", 20))
-                .margin(12)
-                .x_label_area_size(40)
-                .y_label_area_size(60)
-                .build_cartesian_2d(x0..x1, y0..y1)
-                .map_err(|e| err(&e))?;
-            chart.configure_mesh().x_desc(&self.x_label).y_desc(&self.y_label).draw().map_err(|e| err(&e))?;
-            let shade = RGBColor(255, 200, 120).mix(0.35).filled();
-            chart
-                .draw_series(self.bands.iter().filter(|(a, b)| a.is_finite() && b.is_finite()).map(|&(a, b)| Rectangle::new([(a, y0), (b, y1)], shade)))
-                .map_err(|e| err(&e))?;
-            for (i, s) in self.series.iter().enumerate() {
-                let color = PALETTE[i % PALETTE.len()];
-                let pts = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
-                let anno = match s.style {
-                    SeriesStyle::Line => chart.draw_series(LineSeries::new(pts, color.stroke_width(2))).map_err(|e| err(&e))?,
-                    SeriesStyle::Points => chart.draw_series(pts.map(|p| Circle::new(p, 3, color.filled()))).map_err(|e| err(&e))?,
-                    SeriesStyle::LinePoints => chart.draw_series(LineSeries::new(pts, color.stroke_width(2)).point_size(3)).map_err(|e| err(&e))?,
-                };
-                anno.label(s.name.clone()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
-            }
-            if self.series.len() > 1 {
-                chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(|e| err(&e))?;
-            }
-            root.present().map_err(|e| err(&e))?;
-        }
+        self.draw(SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT)).into_drawing_area(), 1)?;
         Ok(svg)
+    }
+
+    /// Render to a PNG image (1600 × 1000 px: the SVG layout at twice the scale),
+    /// text in the DejaVu Sans font shipped in `reports/fonts`.
+    pub fn to_png(&self) -> Result<Vec<u8>, ReportError> {
+        let (w, h) = (WIDTH * PNG_SCALE, HEIGHT * PNG_SCALE);
+        let mut rgb = vec![0u8; (w * h * 3) as usize];
+        self.draw(BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area(), PNG_SCALE)?;
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let err = |e: png::EncodingError| ReportError::Plot { plot: self.title.clone(), message: e.to_string() };
+        let mut writer = enc.write_header().map_err(err)?;
+        writer.write_image_data(&rgb).map_err(err)?;
+        writer.finish().map_err(err)?;
+        Ok(out)
+    }
+
+    /// Draw on any backend; sizes are multiplied by `scale`. With more than one
+    /// series the legend sits in a panel right of the plot, never over the data.
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, plotters::coord::Shift>, scale: u32) -> Result<(), ReportError> {
+        register_font();
+        let err = |e: &dyn std::fmt::Display| ReportError::Plot { plot: self.title.clone(), message: e.to_string() };
+        let s = scale as i32;
+        let ((x0, x1), (y0, y1)) = self.ranges();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let legend = self.series.len() > 1;
+        let (plot_area, legend_area) = root.split_horizontally(if legend { (WIDTH - LEGEND_W) * scale } else { WIDTH * scale });
+        let mut chart = ChartBuilder::on(&plot_area)
+            .caption(&self.title, (FONT, 20 * s))
+            .margin(12 * s)
+            .x_label_area_size(44 * s)
+            .y_label_area_size(64 * s)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .x_desc(&self.x_label)
+            .y_desc(&self.y_label)
+            .label_style((FONT, 12 * s))
+            .axis_desc_style((FONT, 14 * s))
+            .draw()
+            .map_err(|e| err(&e))?;
+        let shade = RGBColor(255, 200, 120).mix(0.35).filled();
+        chart
+            .draw_series(self.bands.iter().filter(|(a, b)| a.is_finite() && b.is_finite()).map(|&(a, b)| Rectangle::new([(a, y0), (b, y1)], shade)))
+            .map_err(|e| err(&e))?;
+        let (stroke, marker) = (2 * scale, 3 * scale);
+        for (i, series) in self.series.iter().enumerate() {
+            let color = PALETTE[i % PALETTE.len()];
+            let pts = series.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
+            match series.style {
+                SeriesStyle::Line => chart.draw_series(LineSeries::new(pts, color.stroke_width(stroke))).map_err(|e| err(&e))?,
+                SeriesStyle::Points => chart.draw_series(pts.map(|p| Circle::new(p, marker, color.filled()))).map_err(|e| err(&e))?,
+                SeriesStyle::LinePoints => chart.draw_series(LineSeries::new(pts, color.stroke_width(stroke)).point_size(marker)).map_err(|e| err(&e))?,
+            };
+        }
+        if legend {
+            let text = TextStyle::from((FONT, 13 * s).into_font()).color(&BLACK);
+            for (i, series) in self.series.iter().enumerate() {
+                let color = PALETTE[i % PALETTE.len()];
+                let y = (48 + 22 * i as i32) * s;
+                legend_area.draw(&PathElement::new(vec![(8 * s, y), (30 * s, y)], color.stroke_width(stroke))).map_err(|e| err(&e))?;
+                if series.style != SeriesStyle::Line {
+                    legend_area.draw(&Circle::new((19 * s, y), marker, color.filled())).map_err(|e| err(&e))?;
+                }
+                legend_area.draw_text(&legend_name(&series.name), &text, (36 * s, y - 7 * s)).map_err(|e| err(&e))?;
+            }
+        }
+        root.present().map_err(|e| err(&e))?;
+        Ok(())
+    }
+}
+
+/// Plot size in SVG pixels, the legend panel's width, and the PNG scale.
+const WIDTH: u32 = 800;
+const HEIGHT: u32 = 500;
+const LEGEND_W: u32 = 200;
+const PNG_SCALE: u32 = 2;
+/// The one font family of every plot, registered from the shipped file.
+const FONT: &str = "sans-serif";
+
+/// Register DejaVu Sans (shipped in `reports/fonts`, Bitstream Vera licence)
+/// as the plots' font, once: no plot depends on the machine's fonts.
+fn register_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // The bytes are a valid TrueType file checked in with the crate; a
+        // failure here would show as missing text, caught by the PNG test.
+        let _ = plotters::style::register_font(FONT, FontStyle::Normal, include_bytes!("../fonts/DejaVuSans.ttf"));
+    });
+}
+
+/// A legend entry fits the panel: at most 26 characters, else cut with "…".
+fn legend_name(name: &str) -> String {
+    if name.chars().count() <= 26 {
+        name.to_string()
+    } else {
+        name.chars().take(25).chain(std::iter::once('…')).collect()
     }
 }
 
@@ -151,9 +220,28 @@ mod tests {
             .line_points("fopdt", vec![(1.0, 93.0)])
             .to_svg()
             .expect("svg");
-        assert_eq!(svg.matches("<circle").count(), 4, "{svg}");
+        // 4 data points + one marker per legend entry (the legend shows the style).
+        assert_eq!(svg.matches("<circle").count(), 6, "{svg}");
         let plain = LinePlot::new("t", "x", "y").line("arx", vec![(1.0, 90.0), (2.0, 95.0)]).to_svg().expect("svg");
         assert_eq!(plain.matches("<circle").count(), 0);
+    }
+
+    #[test]
+    fn png_is_drawn_with_the_shipped_font_and_the_legend_beside_the_data() {
+        let plot = LinePlot::new("Fit by order", "order", "fit %").line("arx", vec![(1.0, 90.0), (2.0, 95.0)]).line("fopdt", vec![(1.0, 93.0), (2.0, 91.0)]);
+        let bytes = plot.to_png().expect("png");
+        let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("decodes");
+        let mut rgb = vec![0; reader.output_buffer_size().expect("size")];
+        let info = reader.next_frame(&mut rgb).expect("frame");
+        assert_eq!((info.width, info.height), (1600, 1000));
+        let dark = |x0: u32, x1: u32, y0: u32, y1: u32| {
+            (y0..y1).flat_map(|y| (x0..x1).map(move |x| (x, y))).filter(|&(x, y)| rgb[3 * (y * 1600 + x) as usize] < 100).count()
+        };
+        // The legend panel (right 400 px) holds the two names drawn in black:
+        // glyphs only appear when the shipped font was registered.
+        assert!(dark(1200, 1600, 0, 300) > 200, "legend text missing");
+        // The title is drawn above the plot area too.
+        assert!(dark(0, 1200, 0, 60) > 200, "title text missing");
     }
 
     #[test]

@@ -45,55 +45,15 @@ impl Table {
 
     /// An HTML `<table>` with a caption.
     pub fn to_html(&self) -> String {
-        let e = crate::html_escape;
+        let (e, cell) = (crate::html_escape, crate::render::inline_html);
         let mut out = format!(
             "<table><caption>{}</caption>\n<tr>{}</tr>\n",
             e(&self.caption),
             self.columns.iter().map(|c| format!("<th>{}</th>", e(c))).collect::<String>()
         );
         for r in &self.rows {
-            out += &format!("<tr>{}</tr>\n", r.iter().map(|c| format!("<td>{}</td>", e(c))).collect::<String>());
+            out += &format!("<tr>{}</tr>\n", r.iter().map(|c| format!("<td>{}</td>", cell(c))).collect::<String>());
         }
         out + "</table>\n"
-    }
-
-    /// A LaTeX `table` float with `booktabs` rules, ready for a paper.
-    pub fn to_latex(&self) -> String {
-        let esc = |s: &str| {
-            s.chars()
-                .map(|c| match c {
-                    '&' | '%' | '$' | '#' | '_' | '{' | '}' => format!("\\{c}"),
-                    '~' => "\\textasciitilde{}".into(),
-                    '^' => "\\textasciicircum{}".into(),
-                    '\\' => "\\textbackslash{}".into(),
-                    '°' => "\\ensuremath{^\\circ}".into(),
-                    c => c.to_string(),
-                })
-                .collect::<String>()
-        };
-        let mut out = format!(
-            "\\begin{{table}}[ht]\n\\centering\n\\caption{{{}}}\n\\begin{{tabular}}{{l{}}}\n\\toprule\n{} \\\\\n\\midrule\n",
-            esc(&self.caption),
-            "r".repeat(self.columns.len().saturating_sub(1)),
-            self.columns.iter().map(|c| esc(c)).collect::<Vec<_>>().join(" & ")
-        );
-        for r in &self.rows {
-            out += &format!("{} \\\\\n", r.iter().map(|c| esc(c)).collect::<Vec<_>>().join(" & "));
-        }
-        out + "\\bottomrule\n\\end{tabular}\n\\end{table}\n"
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn latex_escapes_and_aligns() {
-        let t = Table::new("Fit % by set_1", ["model", "fit_%"]).row(["arx_2", "97.5"]);
-        assert_eq!(
-            t.to_latex(),
-            "\\begin{table}[ht]\n\\centering\n\\caption{Fit \\% by set\\_1}\n\\begin{tabular}{lr}\n\\toprule\nmodel & fit\\_\\% \\\\\n\\midrule\narx\\_2 & 97.5 \\\\\n\\bottomrule\n\\end{tabular}\n\\end{table}\n"
-        );
     }
 }

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod discrepancy;
 pub mod hbot;
 pub mod pa;
+pub mod report;
 pub mod run;
 pub mod runs;
 pub mod thermal;

@@ -48,8 +48,15 @@ pub fn run(args: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         records.push(rec);
     }
+    // A folder of experiments ends with one index of all of them.
+    let index = if args.spec.is_dir() { Some(fdmlab_pipeline::report::write_index(&store, &records)?) } else { None };
     if ctx.json {
         println!("{}", serde_json::to_string(&records)?);
+        if let Some(p) = &index {
+            eprintln!("index: {}", p.display());
+        }
+    } else if let Some(p) = &index {
+        println!("index of {} experiment(s): {}", records.len(), p.display());
     }
     Ok(())
 }

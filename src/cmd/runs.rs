@@ -17,18 +17,6 @@ pub enum RunsCommand {
     },
 }
 
-/// Arguments of `fdmlab diff`.
-#[derive(clap::Args)]
-pub struct DiffArgs {
-    /// First run id (or prefix, or `latest`).
-    pub a: String,
-    /// Second run id.
-    pub b: String,
-    /// Show unchanged rows too.
-    #[arg(long)]
-    pub all: bool,
-}
-
 /// Arguments of `fdmlab cat`.
 #[derive(clap::Args)]
 pub struct CatArgs {
@@ -96,11 +84,11 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 /// `fdmlab diff A B`.
-pub fn diff(args: DiffArgs, ctx: &Ctx) -> anyhow::Result<()> {
+pub fn diff_table(a: &str, b: &str, all: bool, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
-    let a = runs::find(&store, &args.a)?;
-    let b = runs::find(&store, &args.b)?;
-    let rows: Vec<_> = runs::diff(&a, &b).into_iter().filter(|r| args.all || r.changed).collect();
+    let a = runs::find(&store, a)?;
+    let b = runs::find(&store, b)?;
+    let rows: Vec<_> = runs::diff(&a, &b).into_iter().filter(|r| all || r.changed).collect();
     let value = serde_json::json!({"a": a.id, "b": b.id, "rows": rows});
     ctx.emit(&value, || {
         let short = |v: &Option<String>| v.as_deref().map(|s| if s.len() == 64 { s[..12].to_string() } else { s.to_string() }).unwrap_or_else(|| "-".into());

@@ -169,3 +169,16 @@ mod tests {
         }
     }
 }
+
+/// A document format of `fdmlab report` / `fdmlab diff`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DocFormatArg {
+    /// `report.md` with `plot-N.svg` and `plot-N.png` beside it.
+    Md,
+    /// One self-contained `report.html`.
+    Html,
+    /// `report.tex` (standalone) with `\input`-ready `table-N.tex`, `figure-N.tex`.
+    Latex,
+    /// `report.pdf`, the LaTeX compiled by `pdflatex`.
+    Pdf,
+}
