@@ -9,8 +9,8 @@ use fdmlab_reports::{Format, Provenance, RenderedFile, Report, Table};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// The artifact every report stage writes: the [`Report`] as JSON.
-pub const REPORT_JSON: &str = "report.json";
+/// The artifact every report stage writes: the [`Report`] document as JSON.
+pub const REPORT_JSON: &str = "document.json";
 
 /// Which runs a report covers.
 #[derive(Debug, Clone, Default)]
@@ -100,14 +100,22 @@ pub fn document(store: &Store, records: &[RunRecord]) -> Result<(Report, Vec<Pro
     Ok((comparison(kind, &compared, &params, &metrics), loaded.into_iter().map(|(_, p)| p).collect()))
 }
 
-/// Stage parameters and metrics of every run, by dotted name.
+/// Stage parameters (and the seed) and metrics of every run, by dotted name.
 pub fn side_by_side(records: &[RunRecord]) -> (Vec<SideBySide>, Vec<SideBySide>) {
-    let flat: Vec<(BTreeMap<String, String>, BTreeMap<String, String>)> = records.iter().map(runs::flat_params_metrics).collect();
-    let rows = |pick: fn(&(BTreeMap<String, String>, BTreeMap<String, String>)) -> &BTreeMap<String, String>| {
-        let names: BTreeSet<&String> = flat.iter().flat_map(|f| pick(f).keys()).collect();
-        names.into_iter().map(|n| SideBySide { name: n.clone(), values: flat.iter().map(|f| pick(f).get(n).cloned()).collect() }).collect::<Vec<_>>()
-    };
-    (rows(|f| &f.0), rows(|f| &f.1))
+    let (mut params, mut metrics) = (Vec::new(), Vec::new());
+    for r in records {
+        let (mut p, m) = runs::flat_params_metrics(r);
+        p.insert("experiment.seed".into(), r.seed.to_string());
+        params.push(p);
+        metrics.push(m);
+    }
+    (rows(&params), rows(&metrics))
+}
+
+/// One row per name found in any run, with each run's value.
+fn rows(per_run: &[BTreeMap<String, String>]) -> Vec<SideBySide> {
+    let names: BTreeSet<&String> = per_run.iter().flat_map(BTreeMap::keys).collect();
+    names.into_iter().map(|n| SideBySide { name: n.clone(), values: per_run.iter().map(|f| f.get(n).cloned()).collect() }).collect()
 }
 
 /// Render `records` in `formats` (PDF is LaTeX compiled by [`compile_pdf`]).

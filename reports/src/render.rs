@@ -371,7 +371,7 @@ fn latex_table(t: &Table, source: Option<&str>) -> String {
     let esc = |cells: &[String]| cells.iter().map(|c| inline_latex(c)).collect::<Vec<_>>().join(" & ");
     let align = format!("l{}", "r".repeat(t.columns.len().saturating_sub(1)));
     let rows: String = t.rows.iter().map(|r| format!("{} \\\\\n", esc(r))).collect();
-    let src = source.map(|s| latex_escape(s)).unwrap_or_default();
+    let src = source.map(latex_escape).unwrap_or_default();
     if t.rows.len() > LONG_ROWS {
         let note = if src.is_empty() { String::new() } else { format!("\\multicolumn{{{}}}{{l}}{{\\footnotesize {src}}} \\\\\n", t.columns.len()) };
         return format!(

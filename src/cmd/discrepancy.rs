@@ -3,11 +3,11 @@
 //! `fdmlab bench discrepancy` times the whole workflow.
 
 use super::Ctx;
-use anyhow::Context;
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
 use fdmlab_models::discrepancy::SelectOptions;
 use fdmlab_models::thermal::twin::Twin;
 use fdmlab_pipeline::discrepancy::{self as disc, DomainName, ReadSettings};
+use fdmlab_pipeline::report;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
 use fdmlab_pipeline::store::write_files_atomic;
 use fdmlab_pipeline::{Error, Hash};
@@ -163,12 +163,6 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     for n in &out.notes {
         eprintln!("{n}");
     }
-    let rendered = out.document.render().context("rendering the report")?;
-    if let Some(dir) = &a.report {
-        let paths: Vec<PathBuf> = rendered.iter().map(|f| dir.join(&f.name)).collect();
-        let files: Vec<(&Path, &[u8])> = paths.iter().zip(&rendered).map(|(p, f)| (p.as_path(), f.bytes.as_slice())).collect();
-        write_files_atomic(&files)?;
-    }
     let store = ctx.store()?;
     let mut inputs: Vec<InputRef> =
         files.iter().map(|(b, n)| Ok(InputRef { name: format!("file:{n}"), hash: store.put(b)? })).collect::<anyhow::Result<_>>()?;
@@ -181,7 +175,7 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         Artifact { name: "outcome.json".into(), media_type: "application/json".into(), bytes: out.outcome_json.clone() },
         Artifact { name: "model.json".into(), media_type: "application/json".into(), bytes: out.model_json.clone() },
     ];
-    artifacts.extend(rendered.into_iter().map(|f| Artifact { name: f.name, media_type: f.media_type.into(), bytes: f.bytes }));
+    artifacts.push(Artifact { name: report::REPORT_JSON.into(), media_type: "application/json".into(), bytes: serde_json::to_vec_pretty(&out.document)? });
     let metrics = BTreeMap::from([
         ("effects".to_string(), r.effects.len() as f64),
         ("before.rms".to_string(), r.before.rms),
@@ -192,6 +186,10 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let params = json!({"domain": domain.name(), "data": names, "model": a.model, "select": opts, "read": read});
     let record = fdmlab_pipeline::runs::record_command(&store, "discrepancy", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
+    if let Some(dir) = &a.report {
+        // Rendered from the recorded run, so every table and figure names it.
+        report::write_folder(dir, &report::render(&store, std::slice::from_ref(&record), &fdmlab_reports::Format::ALL)?)?;
+    }
     let value = serde_json::to_value(r)?;
     ctx.emit(&value, || {
         let mut s = format!("{} on {file}: {} window(s) where the model leaves the noise band\n", domain.name(), r.windows.len());

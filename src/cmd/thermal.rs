@@ -343,7 +343,9 @@ fn identify(a: IdentifyArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let exps: Vec<Experiment> = logs.iter().map(|l| l.experiment.clone()).collect();
     let verif: Vec<Experiment> = verif_logs.iter().map(|l| l.experiment.clone()).collect();
     let summaries: Vec<serde_json::Value> = logs.iter().chain(&verif_logs).map(LogRead::summary).collect();
-    let max_jitter = logs.iter().chain(&verif_logs).filter_map(|l| l.sampling).map(|s| s.max_jitter_fraction).fold(0.0, f64::max);
+    let max_jitter = logs.iter().chain(&verif_logs).filter_map(|l| l.sampling).map(|s| s.max_jitter_fraction);
+    // No log with timestamps: no jitter (0); a NaN jitter stays NaN, never dropped.
+    let max_jitter = if max_jitter.clone().next().is_none() { 0.0 } else { fdmlab_models::metrics::nan_max(max_jitter) };
     let mut opts = IdentOptions {
         orders: parse_orders(&a.orders)?,
         inputs: a.inputs.split(',').map(|s| s.trim().to_string()).collect(),

@@ -27,7 +27,7 @@ fn same_spec_in_two_fresh_stores_gives_identical_artifacts() {
     let ra = &a.json(&["run", copy_spec(&a, SPEC).to_str().expect("utf8")])[0];
     let rb = &b.json(&["run", copy_spec(&b, SPEC).to_str().expect("utf8")])[0];
     let (ha, hb) = (artifact_hashes(ra), artifact_hashes(rb));
-    assert!(ha.contains_key("report/report.html") && ha.contains_key("identify/first-order.json"), "{ha:?}");
+    assert!(ha.contains_key("report/document.json") && ha.contains_key("identify/first-order.json"), "{ha:?}");
     assert_eq!(ha, hb);
     assert_eq!(ran(ra), ["simulate", "identify", "report"]);
     // The lock files agree byte for byte too.

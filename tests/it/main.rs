@@ -9,6 +9,7 @@ mod discrepancy_domains;
 mod foundation;
 mod hbot;
 mod pa;
+mod reports;
 mod thermal;
 mod thermal_firmware;
 mod turns;

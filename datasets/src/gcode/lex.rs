@@ -36,7 +36,13 @@ pub struct LineLexer {
     pub words: Vec<(char, f64)>,
     /// `KEY=VALUE` argument ranges of an extended command.
     pub args: Vec<(Range<usize>, Range<usize>)>,
+    /// Words of `M`/`T` commands that are not numbers (`M115 U3.11.0`) read as
+    /// NaN instead of failing: for readers that act on motion (`G`) only.
+    pub lenient_m_words: bool,
 }
+
+/// Marlin commands whose whole argument is free text (`M117 Printing...`).
+const TEXT_COMMANDS: [u32; 7] = [23, 28, 30, 32, 117, 118, 928];
 
 fn trim(raw: &[u8], mut r: Range<usize>) -> Range<usize> {
     while r.start < r.end && raw[r.start].is_ascii_whitespace() {
@@ -94,10 +100,33 @@ impl LineLexer {
         } else {
             None
         };
+        if matches!(code, Some((b'M', n)) if TEXT_COMMANDS.contains(&n)) {
+            return Ok(Lexed { head: Some(Head { name, code, classic }), comment });
+        }
+        let lenient = self.lenient_m_words && letter != b'G';
         while let Some(t) = token(raw, &mut at, code_end) {
             let tb = &raw[t.clone()];
+            // A quoted string value (`M862.3 P "MK3S"`, `M1000 S"a b"`, `NAME="a b"`):
+            // it may hold spaces; it is no number, so its word reads NaN.
+            if let Some(q) = tb.iter().position(|&b| b == b'"').filter(|&q| q <= 1 || tb[q - 1] == b'=') {
+                let open = t.start + q;
+                let close = raw[open + 1..code_end].iter().position(|&b| b == b'"').map(|i| open + 1 + i);
+                let Some(close) = close else {
+                    return Err(DatasetError::parse(file, line, &name_str(nb), "unclosed `\"` in a string argument"));
+                };
+                at = close + 1;
+                if q >= 1 && tb[q - 1] == b'=' && !classic {
+                    self.args.push((t.start..open - 1, open + 1..close));
+                } else if q == 1 && classic {
+                    self.words.push((char::from(tb[0].to_ascii_uppercase()), f64::NAN));
+                }
+                continue;
+            }
             if classic {
                 let l = tb[0];
+                if !l.is_ascii_alphabetic() && lenient {
+                    continue;
+                }
                 if !l.is_ascii_alphabetic() {
                     let msg = format!("word `{}` does not start with a letter", String::from_utf8_lossy(tb));
                     return Err(DatasetError::parse(file, line, &name_str(nb), msg));
@@ -105,6 +134,8 @@ impl LineLexer {
                 let l = char::from(l.to_ascii_uppercase());
                 let value = if tb.len() == 1 {
                     f64::NAN
+                } else if lenient {
+                    parse_number(&tb[1..]).unwrap_or(f64::NAN)
                 } else {
                     parse_number(&tb[1..])
                         .ok_or_else(|| DatasetError::parse(file, line, &l.to_string(), format!("`{}` is not a number", String::from_utf8_lossy(&tb[1..]))))?
@@ -175,6 +206,34 @@ pub fn parse_number(b: &[u8]) -> Option<f64> {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn quoted_string_arguments_are_skipped_and_unclosed_ones_located() {
+        let mut lx = LineLexer::default();
+        let l = lx.lex(br#"M862.3 P "MK3S" ; model check"#, 3, "a.gcode").expect("lexes");
+        assert!(l.head.is_some() && l.comment.is_some());
+        let l = lx.lex(br#"M1000 S"a b.gco" X1"#, 4, "a.gcode").expect("lexes");
+        assert!(l.head.is_some());
+        assert!(lx.word('S').is_some_and(f64::is_nan) && lx.word('X') == Some(1.0));
+        lx.lex(br#"RESPOND MSG="two words" TYPE=echo"#, 5, "a.gcode").expect("extended quoted value");
+        assert_eq!(lx.args.len(), 2);
+        let e = lx.lex(br#"M1000 P"open"#, 9, "a.gcode").expect_err("unclosed");
+        assert!(e.to_string().contains("a.gcode") && e.to_string().contains('9'), "{e}");
+    }
+
+    #[test]
+    fn message_commands_take_free_text_and_lenient_m_words_read_nan() {
+        let mut lx = LineLexer::default();
+        lx.lex(b"M117 Printing... 50%", 1, "a.gcode").expect("free text");
+        assert!(lx.words.is_empty());
+        assert!(lx.lex(b"M115 U3.11.0", 2, "a.gcode").is_err(), "strict by default");
+        lx.lenient_m_words = true;
+        lx.lex(b"M115 U3.11.0", 2, "a.gcode").expect("lenient");
+        assert!(lx.word('U').is_some_and(f64::is_nan));
+        // Motion words stay strict: a bad coordinate is still named.
+        let e = lx.lex(b"G1 X1.2.3", 3, "a.gcode").expect_err("strict G");
+        assert!(e.to_string().contains("X"), "{e}");
+    }
 
     #[test]
     fn fast_path_agrees_with_std_on_awkward_decimals() {

@@ -50,7 +50,8 @@ pub fn moves_with<R: BufRead>(reader: R, file: &str, options: ReadOptions) -> Mo
         buf: Vec::with_capacity(256),
         line: 0,
         done: false,
-        lexer: LineLexer::default(),
+        // Motion only: a non-numeric word of an M command (`M115 U3.11.0`) is not an error.
+        lexer: LineLexer { lenient_m_words: true, ..LineLexer::default() },
         machine: Machine::default(),
         scale: 1.0,
         print_accel: 0.0,

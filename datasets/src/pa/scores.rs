@@ -38,7 +38,7 @@ pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> 
     let score_col = t.find("score").ok_or_else(|| DatasetError::parse(file, 1, "score", "missing column `score`"))?;
     let rater_col = t.find("rater").ok_or_else(|| DatasetError::parse(file, 1, "rater", "missing column `rater`"))?;
     let k_col = t.find("k");
-    let step = manifest.regions.windows(2).map(|w| (w[1].k - w[0].k).abs()).fold(f64::INFINITY, f64::min);
+    let step = fdmlab_models::metrics::nan_min(manifest.regions.windows(2).map(|w| (w[1].k - w[0].k).abs()));
     let k_tol = if step.is_finite() { step / 2.0 } else { 1e-9 };
     let mut raters: Vec<String> = Vec::new();
     let mut cells: BTreeMap<(usize, usize), f64> = BTreeMap::new();

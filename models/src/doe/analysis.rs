@@ -120,8 +120,9 @@ pub fn analyze(names: &[String], levels: &[Vec<u8>], response: &[f64], sense: Se
         }
         let means: Vec<f64> = sum.iter().zip(&count).map(|(s, &c)| s / c as f64).collect();
         let sn_means: Vec<f64> = sn_sum.iter().zip(&count).map(|(s, &c)| s / c as f64).collect();
-        let max = means.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let min = means.iter().copied().fold(f64::INFINITY, f64::min);
+        // A NaN level mean (a failed response) makes R NaN, never a smaller range.
+        let max = crate::metrics::nan_max(means.iter().copied());
+        let min = crate::metrics::nan_min(means.iter().copied());
         let mut best = 0;
         for (l, &m) in means.iter().enumerate() {
             if sense.better(m, means[best]) {

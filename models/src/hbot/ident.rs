@@ -231,7 +231,7 @@ pub fn taguchi(base: &HbotParams, factors: &[Factor], data: &[Measurement], arra
     let optimum_levels: Vec<u8> = analysis.factors.iter().map(|f| f.best_level).collect();
     let optimum = set(&optimum_levels);
     let confirmation_s_mm = objective_mm(&optimum, data)?;
-    let best_run_s_mm = s.iter().copied().fold(f64::INFINITY, f64::min);
+    let best_run_s_mm = crate::metrics::nan_min(s.iter().copied());
     Ok(TaguchiResult {
         array: array.name.clone(),
         columns,

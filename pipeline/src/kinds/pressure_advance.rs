@@ -581,7 +581,7 @@ fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScore
         for (i, p) in prints.iter().enumerate() {
             let means = p.table.line_means();
             let pts: Vec<(f64, f64)> = p.table.k.iter().zip(&means).filter_map(|(k, m)| m.map(|m| (*k, m))).collect();
-            let top = pts.iter().map(|p| p.1).fold(0.0, f64::max);
+            let top = fdmlab_models::metrics::nan_max(pts.iter().map(|p| p.1));
             r.plot(
                 LinePlot::new(format!("print {}: mean score, chosen K_A = {}", i + 1, num(p.best.k, 4)), "K_A (s)", "mean score")
                     .points("mean score", pts)
