@@ -131,6 +131,10 @@ fn copy_experiments(dir: &std::path::Path) {
         }
     }
     copy(&crate::common::experiments(), dir);
+    // The turn-prediction spec reads the shipped corpus at `../datasets/turns-corpus`.
+    let datasets = dir.parent().expect("sandbox").join("datasets");
+    std::fs::create_dir_all(&datasets).expect("dir");
+    std::os::unix::fs::symlink(fdmlab_datasets::turns::shipped_corpus(), datasets.join("turns-corpus")).expect("link the corpus");
 }
 
 #[test]
