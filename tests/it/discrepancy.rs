@@ -68,7 +68,6 @@ fn hidden_effects_are_named_and_the_gap_shrinks() {
 }
 
 #[test]
-#[ignore = "issue #11 open: names nothing on the twin grid yet"]
 fn the_twin_grid_shows_fan_and_head_height_missing_from_the_heater_only_model() {
     let sb = Sandbox::new();
     sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "3"]);
