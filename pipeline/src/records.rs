@@ -108,6 +108,59 @@ pub struct RunRecord {
     pub stages: Vec<StageRun>,
     /// Where the reports were materialised, relative to the store root, if any.
     pub reports_dir: Option<String>,
+    /// Which executor ran it, when one did (a sweep task); absent in plain
+    /// runs and in records older than these fields.
+    #[serde(flatten)]
+    pub placement: Placement,
+}
+
+/// Where a run executed when a sweep executor started it. Read from the
+/// environment of the task ([`Placement::from_env`]): Slurm's array
+/// variables, Kubernetes' completion index, or the local pool's.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// `local`, `slurm` or `k8s`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub executor: Option<String>,
+    /// The scheduler's job id (Slurm's `SLURM_ARRAY_JOB_ID`, the Kubernetes Job's name).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job_id: Option<String>,
+    /// The task's index in its array (the sweep variant it ran).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub array_index: Option<u64>,
+}
+
+/// Variables the local sweep pool sets for each worker (Slurm and
+/// Kubernetes set their own).
+pub const LOCAL_EXECUTOR_ENV: &str = "FDMLAB_EXECUTOR";
+/// The variant index the local pool gives a worker.
+pub const LOCAL_INDEX_ENV: &str = "FDMLAB_ARRAY_INDEX";
+/// The Job name a Kubernetes manifest written by `sweep` gives its pods.
+pub const K8S_JOB_ENV: &str = "FDMLAB_JOB_ID";
+
+impl Placement {
+    /// The placement of this process: Slurm (`SLURM_ARRAY_JOB_ID` and
+    /// `SLURM_ARRAY_TASK_ID`, or `SLURM_JOB_ID` outside an array), a
+    /// Kubernetes indexed Job (`JOB_COMPLETION_INDEX`), the local pool
+    /// ([`LOCAL_EXECUTOR_ENV`]), else none.
+    pub fn from_env() -> Placement {
+        Self::from_vars(|k| std::env::var(k).ok().filter(|v| !v.is_empty()))
+    }
+
+    /// [`Placement::from_env`] over any variable lookup.
+    pub fn from_vars(var: impl Fn(&str) -> Option<String>) -> Placement {
+        let index = |k: &str| var(k).and_then(|v| v.trim().parse::<u64>().ok());
+        if let Some(job) = var("SLURM_ARRAY_JOB_ID").or_else(|| var("SLURM_JOB_ID")) {
+            return Placement { executor: Some("slurm".into()), job_id: Some(job), array_index: index("SLURM_ARRAY_TASK_ID") };
+        }
+        if let Some(i) = index("JOB_COMPLETION_INDEX") {
+            return Placement { executor: Some("k8s".into()), job_id: var(K8S_JOB_ENV), array_index: Some(i) };
+        }
+        match var(LOCAL_EXECUTOR_ENV) {
+            Some(name) => Placement { executor: Some(name), job_id: None, array_index: index(LOCAL_INDEX_ENV) },
+            None => Placement::default(),
+        }
+    }
 }
 
 impl RunRecord {

@@ -9,6 +9,8 @@ mod discrepancy_domains;
 mod foundation;
 mod hbot;
 mod pa;
+mod scale_out;
+mod sweep;
 mod thermal;
 mod thermal_firmware;
 mod turns;
