@@ -90,7 +90,9 @@ pub fn add(store: &Store, name: &str, url: &str) -> Result<()> {
 pub fn url_of(store: &Store, name: Option<&str>) -> Result<String> {
     let all = remotes(store)?;
     match name {
-        Some(n) => all.remotes.get(n).cloned().ok_or_else(|| Error::bad_input(format!("no remote `{n}` (add one with `fdmlab remote add {n} s3://bucket/prefix`)"))),
+        Some(n) => {
+            all.remotes.get(n).cloned().ok_or_else(|| Error::bad_input(format!("no remote `{n}` (add one with `fdmlab remote add {n} s3://bucket/prefix`)")))
+        }
         None if all.remotes.len() == 1 => Ok(all.remotes.into_values().next().unwrap_or_default()),
         None if all.remotes.is_empty() => Err(Error::bad_input("the store has no remote (add one with `fdmlab remote add NAME s3://bucket/prefix`)")),
         None => Err(Error::bad_input(format!("the store has {} remotes: name one with --remote", all.remotes.len()))),
@@ -123,10 +125,8 @@ impl Remote {
     /// Open `url` with the endpoint and credentials of the `AWS_*` variables.
     pub fn open(url: &str) -> Result<Remote> {
         let parsed: RemoteUrl = url.parse()?;
-        let client = object_store::aws::AmazonS3Builder::from_env()
-            .with_bucket_name(&parsed.bucket)
-            .build()
-            .map_err(|e| Error::Store(format!("remote {url}: {e}")))?;
+        let client =
+            object_store::aws::AmazonS3Builder::from_env().with_bucket_name(&parsed.bucket).build().map_err(|e| Error::Store(format!("remote {url}: {e}")))?;
         Ok(Remote { client: Arc::new(client), url: url.to_string(), prefix: parsed.prefix })
     }
 

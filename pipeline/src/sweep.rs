@@ -36,7 +36,7 @@ fn bad_set(arg: &str, why: impl std::fmt::Display) -> Error {
 impl std::str::FromStr for SetArg {
     type Err = Error;
 
-    /// `KEY=V1,V2,…` (TOML literals; a bare word is a string) or
+    /// `KEY=V1,V2,…` (TOML literals; a bare word or path is a string) or
     /// `KEY=A..B:STEP` (inclusive numeric range).
     fn from_str(arg: &str) -> Result<SetArg> {
         let (key, rest) = arg.split_once('=').ok_or_else(|| bad_set(arg, "expected KEY=V1,V2,… or KEY=A..B:STEP"))?;
@@ -114,14 +114,14 @@ fn split_top_level(text: &str) -> Vec<&str> {
     out
 }
 
-/// A TOML literal; a bare word (`first-order`) is taken as a string.
+/// A TOML literal; a bare word or path (`first-order`, `data/x.csv`) is taken as a string.
 fn literal(text: &str) -> std::result::Result<toml::Value, String> {
     if text.is_empty() {
         return Err("empty value".into());
     }
     match toml::from_str::<toml::Table>(&format!("v = {text}")) {
         Ok(mut t) => t.remove("v").ok_or_else(|| format!("`{text}` is not a TOML value")),
-        Err(_) if text.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-+".contains(&b)) => Ok(toml::Value::String(text.to_string())),
+        Err(_) if text.bytes().all(|b| b.is_ascii_alphanumeric() || b"_.-+/".contains(&b)) => Ok(toml::Value::String(text.to_string())),
         Err(e) => Err(format!("`{text}` is not a TOML value: {}", e.message())),
     }
 }
@@ -337,7 +337,11 @@ pub fn outcomes(store: &Store, sweep: &Sweep) -> Vec<Outcome> {
             let metrics = run
                 .iter()
                 .flat_map(|r| r.stages.iter())
-                .flat_map(|s| s.metrics.iter().map(move |(k, m)| (format!("{}.{k}", s.name), serde_json::Number::from_f64(*m).map(serde_json::Value::Number).unwrap_or_default())))
+                .flat_map(|s| {
+                    s.metrics
+                        .iter()
+                        .map(move |(k, m)| (format!("{}.{k}", s.name), serde_json::Number::from_f64(*m).map(serde_json::Value::Number).unwrap_or_default()))
+                })
                 .collect();
             Outcome {
                 run: run.map(|r| r.id.clone()),

@@ -46,7 +46,8 @@ pub fn sweep(args: SweepArgs, ctx: &Ctx) -> anyhow::Result<()> {
         return k8s_manifest(&plan, &args, ctx);
     }
     if !pending.is_empty() {
-        eprintln!("sweep {}: {} variant(s), {} to run ({:?})", plan.id, plan.variants.len(), pending.len(), args.executor);
+        let executor = clap::ValueEnum::to_possible_value(&args.executor).map(|v| v.get_name().to_string()).unwrap_or_default();
+        eprintln!("sweep {}: {} variant(s), {} to run ({executor})", plan.id, plan.variants.len(), pending.len());
         let exe = std::env::current_exe().context("cannot find the fdmlab executable")?;
         let store_dir = std::fs::canonicalize(&ctx.store_dir)?;
         match args.executor {
@@ -61,7 +62,8 @@ pub fn sweep(args: SweepArgs, ctx: &Ctx) -> anyhow::Result<()> {
         let mut s = format!("sweep {} of {}: {} variant(s)\n", plan.id, plan.spec.display(), outcomes.len());
         for (i, o) in outcomes.iter().enumerate() {
             let set: Vec<String> = o.set.iter().map(|(k, v)| format!("{k}={v}")).collect();
-            let metrics: Vec<String> = o.metrics.iter().map(|(k, v)| format!("{k}={v}")).collect();
+            let metrics: Vec<String> =
+                o.metrics.iter().map(|(k, v)| format!("{k}={}", v.as_f64().map(|x| format!("{x:.4}")).unwrap_or_else(|| v.to_string()))).collect();
             s += &format!("{i:>4}  {:<6} {:<30} {:<32} {}\n", o.state, o.run.as_deref().unwrap_or("-"), set.join(" "), metrics.join(" "));
             if let Some(log) = &o.log {
                 s += &format!("      log {}:\n{}", log.display(), tail(log, 5));
@@ -101,27 +103,28 @@ fn run_local(exe: &Path, store_dir: &Path, plan: &Sweep, pending: &[usize], jobs
     let threads = std::env::var("FDMLAB_THREADS").unwrap_or_else(|_| (cores / jobs).max(1).to_string());
     std::thread::scope(|s| {
         for _ in 0..jobs {
-            s.spawn(|| loop {
-                let Some(&index) = pending.get(next.fetch_add(1, Ordering::Relaxed)) else { break };
-                let variant = &plan.variants[index];
-                let log_path = plan.log_path(index);
-                let status = std::fs::File::create(&log_path).and_then(|log| {
-                    Command::new(exe)
-                        .arg("--store")
-                        .arg(store_dir)
-                        .arg("run")
-                        .arg(&variant.path)
-                        .env(LOCAL_EXECUTOR_ENV, "local")
-                        .env(LOCAL_INDEX_ENV, index.to_string())
-                        .env("FDMLAB_THREADS", &threads)
-                        .stdin(Stdio::null())
-                        .stdout(log.try_clone()?)
-                        .stderr(log)
-                        .status()
-                });
-                if let Err(e) = status {
-                    // The variant shows as failed; say why beside its log.
-                    eprintln!("sweep: variant {index}: cannot start {}: {e}", exe.display());
+            s.spawn(|| {
+                while let Some(&index) = pending.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let variant = &plan.variants[index];
+                    let log_path = plan.log_path(index);
+                    let status = std::fs::File::create(&log_path).and_then(|log| {
+                        Command::new(exe)
+                            .arg("--store")
+                            .arg(store_dir)
+                            .arg("run")
+                            .arg(&variant.path)
+                            .env(LOCAL_EXECUTOR_ENV, "local")
+                            .env(LOCAL_INDEX_ENV, index.to_string())
+                            .env("FDMLAB_THREADS", &threads)
+                            .stdin(Stdio::null())
+                            .stdout(log.try_clone()?)
+                            .stderr(log)
+                            .status()
+                    });
+                    if let Err(e) = status {
+                        // The variant shows as failed; say why beside its log.
+                        eprintln!("sweep: variant {index}: cannot start {}: {e}", exe.display());
+                    }
                 }
             });
         }
@@ -212,7 +215,9 @@ fn k8s_manifest(plan: &Sweep, args: &SweepArgs, ctx: &Ctx) -> anyhow::Result<()>
     let path = plan.dir.join("job.yaml");
     fdmlab_pipeline::store::write_file_atomic(&path, yaml.as_bytes())?;
     let value = serde_json::json!({"sweep": plan.id, "manifest": path.display().to_string(), "variants": n});
-    ctx.emit(&value, || format!("sweep {}: Kubernetes Job manifest for {n} variant(s) written to {}\n  kubectl apply -f {}\n", plan.id, path.display(), path.display()));
+    ctx.emit(&value, || {
+        format!("sweep {}: Kubernetes Job manifest for {n} variant(s) written to {}\n  kubectl apply -f {}\n", plan.id, path.display(), path.display())
+    });
     Ok(())
 }
 
@@ -242,7 +247,9 @@ pub fn bench(args: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_pipeline::{remote, runs, Store};
     use std::time::Instant;
     if !args.spec.is_file() {
-        return Err(fdmlab_pipeline::Error::bad_input(format!("spec `{}` not found (the default is relative to the repository root)", args.spec.display())).into());
+        return Err(
+            fdmlab_pipeline::Error::bad_input(format!("spec `{}` not found (the default is relative to the repository root)", args.spec.display())).into()
+        );
     }
     let n = args.variants.max(1);
     let scratch = super::scratch_dir()?;
@@ -285,8 +292,20 @@ pub fn bench(args: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
             .collect();
         let total: u64 = payloads.iter().map(|p| p.len() as u64).sum();
         let source = Store::open(&scratch.join("push"))?;
-        let artifacts = payloads.iter().enumerate().map(|(i, b)| fdmlab_pipeline::stage::Artifact { name: format!("blob{i}"), media_type: "application/octet-stream".into(), bytes: b.clone() }).collect();
-        runs::record_command(&source, "bench-blobs", serde_json::json!({"blobs": args.blobs, "kib": args.blob_kib}), vec![], artifacts, Default::default(), 0.0)?;
+        let artifacts = payloads
+            .iter()
+            .enumerate()
+            .map(|(i, b)| fdmlab_pipeline::stage::Artifact { name: format!("blob{i}"), media_type: "application/octet-stream".into(), bytes: b.clone() })
+            .collect();
+        runs::record_command(
+            &source,
+            "bench-blobs",
+            serde_json::json!({"blobs": args.blobs, "kib": args.blob_kib}),
+            vec![],
+            artifacts,
+            Default::default(),
+            0.0,
+        )?;
         let base = format!("{}/{}", url.trim_end_matches('/'), fdmlab_pipeline::store::unique_name("bench"));
         let t = Instant::now();
         remote::push(&source, &format!("{base}/store"), &[])?;

@@ -21,7 +21,14 @@ fn concurrent_writers_lose_no_run_record() {
     }
     let spawned: Vec<std::process::Child> = specs
         .iter()
-        .map(|s| sb.cmd(&["--json", "run", s.to_str().expect("utf8")]).env("FDMLAB_THREADS", "1").stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().expect("spawn"))
+        .map(|s| {
+            sb.cmd(&["--json", "run", s.to_str().expect("utf8")])
+                .env("FDMLAB_THREADS", "1")
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .expect("spawn")
+        })
         .collect();
     let gc = sb.run(&["gc"]);
     assert!(gc.status.success(), "gc: {}", stderr(&gc));
@@ -47,7 +54,16 @@ fn slurm_sweep_is_one_job_array_and_a_failed_task_loses_nothing() {
     let conf = service_env("SLURM_CONF");
     let sb = Sandbox::new();
     let spec = logs_spec(&sb);
-    let args = ["--json", "sweep", spec.to_str().expect("utf8"), "--set", "data.log=data/good.csv,data/bad.csv,data/good.csv", "--executor", "slurm", "--slurm-arg=--time=10"];
+    let args = [
+        "--json",
+        "sweep",
+        spec.to_str().expect("utf8"),
+        "--set",
+        "data.log=data/good.csv,data/bad.csv,data/good.csv",
+        "--executor",
+        "slurm",
+        "--slurm-arg=--time=10",
+    ];
     let out = sb.cmd(&args).env("SLURM_CONF", &conf).output().expect("spawn");
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     let v: Value = serde_json::from_slice(&out.stdout).expect("json");
@@ -85,17 +101,20 @@ fn add_remote(sb: &Sandbox, prefix: &str) {
     sb.ok(&["remote", "add", "origin", &format!("s3://{bucket}/{prefix}")]);
 }
 
-fn unique_prefix(sb: &Sandbox) -> String {
-    sb.path().file_name().expect("name").to_string_lossy().trim_start_matches('.').to_lowercase()
+/// A store that ran the spec once, with a remote `origin` under a prefix of
+/// its own; returns the store, the prefix and the run (`run --json`).
+fn store_with_remote() -> (Sandbox, String, Value) {
+    let sb = Sandbox::new();
+    let prefix = sb.path().file_name().expect("name").to_string_lossy().trim_start_matches('.').to_lowercase();
+    let run = sb.json(&["run", copy_spec(&sb, SPEC).to_str().expect("utf8")])[0].clone();
+    add_remote(&sb, &prefix);
+    (sb, prefix, run)
 }
 
 #[test]
 fn push_then_pull_into_a_store_that_never_ran_it() {
-    let a = Sandbox::new();
-    let prefix = unique_prefix(&a);
-    let run = &a.json(&["run", copy_spec(&a, SPEC).to_str().expect("utf8")])[0];
+    let (a, prefix, run) = store_with_remote();
     let id = run["id"].as_str().expect("id").to_string();
-    add_remote(&a, &prefix);
     let pushed = a.json(&["push"]);
     assert_eq!(pushed["runs"], serde_json::json!([id]));
     let moved = pushed["transferred"].as_u64().expect("count");
@@ -122,11 +141,8 @@ fn push_then_pull_into_a_store_that_never_ran_it() {
 
 #[test]
 fn an_interrupted_push_shows_no_run_and_resumes() {
-    let a = Sandbox::new();
-    let prefix = unique_prefix(&a);
-    let run = &a.json(&["run", copy_spec(&a, SPEC).to_str().expect("utf8")])[0];
+    let (a, prefix, run) = store_with_remote();
     let id = run["id"].as_str().expect("id").to_string();
-    add_remote(&a, &prefix);
     let out = a.cmd(&["push"]).env("FDMLAB_TEST_PUSH_FAIL_AFTER", "2").output().expect("spawn");
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     assert!(stderr(&out).contains("push interrupted"), "{}", stderr(&out));

@@ -20,7 +20,10 @@ pub fn logs_spec(sb: &Sandbox) -> std::path::PathBuf {
     let spec = copy_spec(sb, SPEC);
     let scratch = Sandbox::new();
     let run = &scratch.json(&["run", copy_spec(&scratch, SPEC).to_str().expect("utf8")])[0];
-    let csv = run["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "log.csv").expect("log.csv")["hash"].as_str().expect("hash").to_string();
+    let csv = run["stages"][0]["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == "log.csv").expect("log.csv")["hash"]
+        .as_str()
+        .expect("hash")
+        .to_string();
     std::fs::create_dir_all(sb.path().join("data")).expect("data dir");
     sb.write("data/good.csv", &scratch.ok(&["cat", &csv]));
     sb.write("data/bad.csv", "this is not a temperature log\n");
@@ -36,7 +39,8 @@ fn local_sweep_runs_each_variant_once_with_its_own_record() {
     let runs = out["runs"].as_array().expect("runs");
     assert_eq!(runs.len(), 4);
     // The first --set varies slowest; a range is inclusive.
-    let sets: Vec<(f64, f64)> = runs.iter().map(|r| (r["set"]["plant.tau_s"].as_f64().expect("tau"), r["set"]["sensor.sigma_c"].as_f64().expect("sigma"))).collect();
+    let sets: Vec<(f64, f64)> =
+        runs.iter().map(|r| (r["set"]["plant.tau_s"].as_f64().expect("tau"), r["set"]["sensor.sigma_c"].as_f64().expect("sigma"))).collect();
     assert_eq!(sets, [(80.0, 0.2), (80.0, 0.4), (95.0, 0.2), (95.0, 0.4)]);
     let records = records(&sb);
     assert_eq!(records.len(), 4, "one run record per variant");
@@ -82,7 +86,15 @@ fn a_bad_value_names_its_key_and_nothing_runs() {
 fn a_failing_variant_is_reported_without_losing_the_others() {
     let sb = Sandbox::new();
     let spec = logs_spec(&sb);
-    let out = sb.run(&["--json", "sweep", spec.to_str().expect("utf8"), "--set", "data.log=data/good.csv,data/bad.csv,data/good.csv", "--set", "identify.families=[\"first-order\"]"]);
+    let out = sb.run(&[
+        "--json",
+        "sweep",
+        spec.to_str().expect("utf8"),
+        "--set",
+        "data.log=data/good.csv,data/bad.csv,data/good.csv",
+        "--set",
+        "identify.families=[\"first-order\"]",
+    ]);
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     let v: Value = serde_json::from_slice(&out.stdout).expect("json");
     let states: Vec<&str> = v["runs"].as_array().expect("runs").iter().map(|r| r["state"].as_str().expect("state")).collect();
@@ -102,7 +114,18 @@ fn a_failing_variant_is_reported_without_losing_the_others() {
 fn k8s_manifest_is_an_indexed_job_over_the_variants() {
     let sb = Sandbox::new();
     let spec = copy_spec(&sb, SPEC);
-    let out = sb.json(&["sweep", spec.to_str().expect("utf8"), "--set", "plant.tau_s=80,90,100", "--executor", "k8s-manifest", "--jobs", "2", "--k8s-image", "ghcr.io/lab/fdmlab:1"]);
+    let out = sb.json(&[
+        "sweep",
+        spec.to_str().expect("utf8"),
+        "--set",
+        "plant.tau_s=80,90,100",
+        "--executor",
+        "k8s-manifest",
+        "--jobs",
+        "2",
+        "--k8s-image",
+        "ghcr.io/lab/fdmlab:1",
+    ]);
     let yaml = std::fs::read_to_string(out["manifest"].as_str().expect("manifest")).expect("manifest file");
     let id = out["sweep"].as_str().expect("id");
     for want in [
