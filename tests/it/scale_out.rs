@@ -155,3 +155,33 @@ fn an_interrupted_push_shows_no_run_and_resumes() {
     b.ok(&["verify"]);
     b.ok(&["runs", "show", &id]);
 }
+
+#[test]
+fn gc_keeps_old_stage_records_while_a_run_is_in_flight() {
+    let sb = Sandbox::new();
+    let run = &sb.json(&["run", copy_spec(&sb, SPEC).to_str().expect("utf8")])[0];
+    // Its record gone, the run's stage records and blobs are referenced by
+    // nothing; make them two hours old.
+    std::fs::remove_dir_all(sb.store().join("runs").join(run["id"].as_str().expect("id"))).expect("drop record");
+    for dir in ["stages", "objects"] {
+        let ok = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!("find '{}' -type f -exec touch -d '2 hours ago' {{}} +", sb.store().join(dir).display()))
+            .status();
+        assert!(ok.is_ok_and(|s| s.success()));
+    }
+    // A task that has started (its run folder exists) may be reusing them.
+    let in_flight = sb.store().join("runs").join("20991231-000000.000000-abcdef");
+    std::fs::create_dir(&in_flight).expect("run in flight");
+    let kept = sb.json(&["gc"]);
+    assert_eq!(
+        (kept["removed_blobs"].as_u64(), kept["removed_stage_records"].as_u64(), kept["runs_in_flight"].as_u64()),
+        (Some(0), Some(0), Some(1)),
+        "{kept}"
+    );
+    std::fs::remove_dir(&in_flight).expect("run over");
+    let removed = sb.json(&["gc"]);
+    assert_eq!(removed["removed_stage_records"].as_u64(), Some(3), "{removed}");
+    assert!(removed["removed_blobs"].as_u64().is_some_and(|n| n > 0), "{removed}");
+    sb.ok(&["verify"]);
+}
