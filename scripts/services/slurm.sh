@@ -15,6 +15,7 @@ packages)
     command -v slurmd >/dev/null || echo slurmd
     command -v sbatch >/dev/null || echo slurm-client
     command -v munged >/dev/null || echo munge
+    command -v python3 >/dev/null || echo python3
     ;;
 up)
     dir=$(realpath -m "${2:?usage: slurm.sh up DIR}")
@@ -31,6 +32,11 @@ up)
         --pid-file="$dir/munge/munged.pid" --seed-file="$dir/munge/munged.seed" --log-file="$dir/munge/munged.log"
     # The node line is the hardware line slurmd prints, with more CPUs than
     # cores so a small array runs at once (config_overrides).
+    # Free loopback ports, so a cluster of another checkout can run beside this one.
+    read -r ctld_port slurmd_port < <(python3 -c 'import socket
+s = [socket.socket() for _ in range(2)]
+for x in s: x.bind(("127.0.0.1", 0))
+print(*(x.getsockname()[1] for x in s))')
     hw=$(slurmd -C | head -n1 | sed -e "s/^NodeName=[^ ]*/NodeName=$node/" -e 's/CPUs=[0-9]*/CPUs=8/' -e 's/ThreadsPerCore=[0-9]*/ThreadsPerCore=4/' -e 's/RealMemory=[0-9]*/RealMemory=4000/')
     cat >"$dir/slurm.conf" <<EOF
 ClusterName=fdmlab
@@ -57,8 +63,8 @@ SlurmctldPidFile=$dir/slurmctld.pid
 SlurmdPidFile=$dir/slurmd.pid
 SlurmctldLogFile=$dir/log/slurmctld.log
 SlurmdLogFile=$dir/log/slurmd.log
-SlurmctldPort=6917
-SlurmdPort=6918
+SlurmctldPort=$ctld_port
+SlurmdPort=$slurmd_port
 $hw NodeAddr=127.0.0.1 State=UNKNOWN
 PartitionName=$partition Nodes=$node Default=YES MaxTime=INFINITE State=UP
 EOF
