@@ -173,3 +173,33 @@ impl RunRecord {
         self.stages.iter().flat_map(|s| s.inputs.iter().map(|i| &i.hash).chain(s.outputs.iter().map(|o| &o.hash)))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn placement(vars: &[(&str, &str)]) -> Placement {
+        Placement::from_vars(|k| vars.iter().find(|(n, _)| *n == k).map(|(_, v)| v.to_string()))
+    }
+
+    #[test]
+    fn placement_comes_from_the_executor_environment() {
+        let slurm = placement(&[("SLURM_ARRAY_JOB_ID", "41"), ("SLURM_JOB_ID", "43"), ("SLURM_ARRAY_TASK_ID", "2")]);
+        assert_eq!(slurm, Placement { executor: Some("slurm".into()), job_id: Some("41".into()), array_index: Some(2) });
+        let k8s = placement(&[("JOB_COMPLETION_INDEX", "5"), (K8S_JOB_ENV, "fdmlab-sweep-x")]);
+        assert_eq!(k8s, Placement { executor: Some("k8s".into()), job_id: Some("fdmlab-sweep-x".into()), array_index: Some(5) });
+        let local = placement(&[(LOCAL_EXECUTOR_ENV, "local"), (LOCAL_INDEX_ENV, "3")]);
+        assert_eq!(local, Placement { executor: Some("local".into()), job_id: None, array_index: Some(3) });
+        assert_eq!(placement(&[]), Placement::default());
+    }
+
+    #[test]
+    fn records_without_placement_still_load_and_plain_runs_write_none() {
+        let json = r#"{"id":"x","experiment":"e","kind":"k","spec_path":"s.toml","spec_hash":"h","seed":1,"fdmlab_version":"0.1.0",
+            "git_rev":null,"started_at":"t","wall_s":0.5,"stages":[],"reports_dir":null}"#;
+        let r: RunRecord = serde_json::from_str(json).expect("an old record loads");
+        assert_eq!(r.placement, Placement::default());
+        let back = serde_json::to_string(&r).expect("json");
+        assert!(!back.contains("executor") && !back.contains("array_index"), "{back}");
+    }
+}

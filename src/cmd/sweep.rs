@@ -170,16 +170,26 @@ fn run_slurm(exe: &Path, store_dir: &Path, plan: &Sweep, pending: &[usize], slur
     eprintln!("sweep {}: Slurm job array {job} ({} task(s)); waiting", plan.id, pending.len());
     // Poll the queue; once the job has left it, or Slurm no longer knows
     // it, every task has ended.
+    // A controller that does not answer (restarting, overloaded) is asked
+    // again, for up to 10 minutes in a row.
     let mut wait = Duration::from_millis(200);
+    let mut unanswered = Duration::ZERO;
     loop {
         let q = Command::new("squeue").args(["-h", "-j", &job, "-o", "%i %T"]).stdin(Stdio::null()).output().context("cannot run `squeue`")?;
-        if !q.status.success() || String::from_utf8_lossy(&q.stdout).trim().is_empty() {
-            break;
+        let err = String::from_utf8_lossy(&q.stderr);
+        if (q.status.success() && String::from_utf8_lossy(&q.stdout).trim().is_empty()) || err.contains("Invalid job id") {
+            return Ok(());
+        }
+        if q.status.success() {
+            unanswered = Duration::ZERO;
+        } else if unanswered > Duration::from_secs(600) {
+            bail!("squeue has not answered for 10 minutes about job {job}: {}", err.trim());
+        } else {
+            unanswered += wait;
         }
         std::thread::sleep(wait);
         wait = (wait * 2).min(Duration::from_secs(5));
     }
-    Ok(())
 }
 
 /// An indexed Kubernetes Job: completion index N runs variant N.
