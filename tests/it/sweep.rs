@@ -30,6 +30,22 @@ pub fn logs_spec(sb: &Sandbox) -> std::path::PathBuf {
     spec
 }
 
+/// Variants of [`logs_spec`]: the middle one cannot run.
+pub const GOOD_BAD_GOOD: &str = "data.log=data/good.csv,data/bad.csv,data/good.csv";
+
+/// The `sweep --json` of [`GOOD_BAD_GOOD`] exited 1, reporting the middle
+/// variant failed (no run, its log telling why) and the others ok; returns the answer.
+pub fn middle_variant_failed(out: &std::process::Output) -> Value {
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(out));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("json");
+    let states: Vec<&str> = v["runs"].as_array().expect("runs").iter().map(|r| r["state"].as_str().expect("state")).collect();
+    assert_eq!(states, ["ok", "failed", "ok"], "{}", stderr(out));
+    assert!(v["runs"][1]["run"].is_null());
+    let log = std::fs::read_to_string(v["runs"][1]["log"].as_str().expect("log path")).expect("the failed task's log");
+    assert!(log.contains("bad.csv"), "the task's log tells why: {log}");
+    v
+}
+
 #[test]
 fn local_sweep_runs_each_variant_once_with_its_own_record() {
     let sb = Sandbox::new();
@@ -86,23 +102,8 @@ fn a_bad_value_names_its_key_and_nothing_runs() {
 fn a_failing_variant_is_reported_without_losing_the_others() {
     let sb = Sandbox::new();
     let spec = logs_spec(&sb);
-    let out = sb.run(&[
-        "--json",
-        "sweep",
-        spec.to_str().expect("utf8"),
-        "--set",
-        "data.log=data/good.csv,data/bad.csv,data/good.csv",
-        "--set",
-        "identify.families=[\"first-order\"]",
-    ]);
-    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
-    let v: Value = serde_json::from_slice(&out.stdout).expect("json");
-    let states: Vec<&str> = v["runs"].as_array().expect("runs").iter().map(|r| r["state"].as_str().expect("state")).collect();
-    assert_eq!(states, ["ok", "failed", "ok"]);
-    let failed = &v["runs"][1];
-    assert!(failed["run"].is_null());
-    let log = std::fs::read_to_string(failed["log"].as_str().expect("log path")).expect("log");
-    assert!(log.contains("bad.csv"), "the task's log tells why: {log}");
+    let out = sb.run(&["--json", "sweep", spec.to_str().expect("utf8"), "--set", GOOD_BAD_GOOD, "--set", "identify.families=[\"first-order\"]"]);
+    let v = middle_variant_failed(&out);
     assert!(stderr(&out).contains("1 of 3 variant(s) failed"), "{}", stderr(&out));
     // Both good variants read the same log: one record each, identical metrics.
     assert_eq!(v["runs"][0]["metrics"], v["runs"][2]["metrics"]);
