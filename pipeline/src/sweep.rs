@@ -219,18 +219,13 @@ pub fn plan(store: &Store, spec_path: &Path, sets: &[SetArg]) -> Result<Sweep> {
 /// A variant's error, told against the spec it came from: the failing key's
 /// line there when it has one, and the values that made the variant.
 fn variant_error(spec: &SpecFile, shown: &[String], e: Error) -> Error {
+    let told = |key: String, message: String| {
+        let (line, column) = if key.is_empty() { (0, 0) } else { spec.locate(&key) };
+        Error::Input { file: spec.path.display().to_string(), line, column, key, message: format!("{message} (sweep variant {})", shown.join(", ")) }
+    };
     match e {
-        Error::Input { key, message, .. } => {
-            let (line, column) = if key.is_empty() { (0, 0) } else { spec.locate(&key) };
-            Error::Input { file: spec.path.display().to_string(), line, column, key, message: format!("{message} (sweep variant {})", shown.join(", ")) }
-        }
-        other if other.is_bad_input() => Error::Input {
-            file: spec.path.display().to_string(),
-            line: 0,
-            column: 0,
-            key: String::new(),
-            message: format!("{other} (sweep variant {})", shown.join(", ")),
-        },
+        Error::Input { key, message, .. } => told(key, message),
+        other if other.is_bad_input() => told(String::new(), other.to_string()),
         other => other,
     }
 }
