@@ -27,6 +27,8 @@ struct Cli {
 enum Command {
     /// Run a spec (or every *.toml in a folder); cached stages are reused.
     Run(cmd::run::RunArgs),
+    /// Run a spec over the product of `--set` values: a local pool, a Slurm array, or a Kubernetes Job manifest.
+    Sweep(cmd::sweep::SweepArgs),
     /// Check a spec (or folder) without running it.
     Validate(cmd::run::ValidateArgs),
     /// List or show run records.
@@ -36,6 +38,13 @@ enum Command {
     Diff(cmd::report::DiffArgs),
     /// Render runs as a report (one run) or a comparison (several runs of one kind): md, html, latex, pdf.
     Report(cmd::report::ReportArgs),
+    /// Name remote stores (S3 and compatibles) to push runs to and pull them from.
+    #[command(subcommand)]
+    Remote(cmd::remote::RemoteCommand),
+    /// Copy runs, their stage records and blobs to a remote (every run when none is named).
+    Push(cmd::remote::TransferArgs),
+    /// Copy runs from a remote, verified blob by blob (every run this store lacks when none is named).
+    Pull(cmd::remote::TransferArgs),
     /// Re-hash every blob; list corrupt or missing ones (exit 1 if any).
     Verify,
     /// Remove blobs and stage records that no run references.
@@ -95,10 +104,14 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Run(a) => cmd::run::run(a, &ctx),
+        Command::Sweep(a) => cmd::sweep::sweep(a, &ctx),
         Command::Validate(a) => cmd::run::validate(a, &ctx),
         Command::Runs(c) => cmd::runs::runs(c, &ctx),
         Command::Diff(a) => cmd::report::diff(a, &ctx),
         Command::Report(a) => cmd::report::report(a, &ctx),
+        Command::Remote(c) => cmd::remote::remote(c, &ctx),
+        Command::Push(a) => cmd::remote::push(a, &ctx),
+        Command::Pull(a) => cmd::remote::pull(a, &ctx),
         Command::Verify => cmd::runs::verify(&ctx),
         Command::Gc => cmd::runs::gc(&ctx),
         Command::Cat(a) => cmd::runs::cat(a, &ctx),

@@ -18,11 +18,17 @@ pub struct RunOptions {
     pub force: bool,
     /// Show a progress bar (stderr) — set when stdout is a terminal.
     pub progress: bool,
+    /// Where this run executes (a sweep task), copied into its record.
+    pub placement: crate::records::Placement,
 }
 
 /// Parse and validate a spec and plan its stages without running anything.
 pub fn validate(path: &Path) -> Result<(SpecFile, Vec<Stage>)> {
-    let spec = SpecFile::load(path)?;
+    validate_spec(SpecFile::load(path)?)
+}
+
+/// [`validate`] for a spec already read (a sweep variant before it is written).
+pub fn validate_spec(spec: SpecFile) -> Result<(SpecFile, Vec<Stage>)> {
     let stages = kinds::plan(&spec)?;
     check_graph(&spec, &stages)?;
     Ok((spec, stages))
@@ -195,6 +201,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
         wall_s: started.elapsed().as_secs_f64(),
         stages: done,
         reports_dir: None,
+        placement: opts.placement.clone(),
     };
     record.reports_dir = materialise_reports(store, &record)?.map(|p| p.display().to_string());
     runs::write_record(store, &record)?;

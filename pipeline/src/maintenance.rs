@@ -82,7 +82,8 @@ impl Store {
     /// What a run in flight has written is not referenced by any record yet,
     /// so everything modified since the start of the oldest unfinished run (a
     /// run folder without a record, younger than a day), or in the last
-    /// hour, is kept, with every blob a kept stage record names. Unfinished
+    /// hour, is kept, with every blob a kept stage record names. While any
+    /// run is in flight no stage record is removed: it may be reusing one. Unfinished
     /// folders older than a day are left by killed runs and are removed.
     pub fn gc(&self) -> Result<GcReport> {
         let mut report = GcReport::default();
@@ -111,7 +112,10 @@ impl Store {
             if stage_keys.contains(entry.key.as_str()) {
                 continue;
             }
-            if entry.modified.is_none_or(|t| t >= cutoff) {
+            // A run in flight may have reused any stage record (a cache hit on
+            // an old one no finished run names): keep them all, with their
+            // blobs, until no run is in flight.
+            if report.runs_in_flight > 0 || entry.modified.is_none_or(|t| t >= cutoff) {
                 match entry.record {
                     Ok(r) => keep_blobs.extend(r.inputs.into_iter().map(|i| i.hash).chain(r.outputs.into_iter().map(|o| o.hash))),
                     Err(why) => return Err(Error::Store(format!("refusing to collect garbage: recent stage record {why}"))),

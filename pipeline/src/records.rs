@@ -108,6 +108,59 @@ pub struct RunRecord {
     pub stages: Vec<StageRun>,
     /// Where the reports were materialised, relative to the store root, if any.
     pub reports_dir: Option<String>,
+    /// Which executor ran it, when one did (a sweep task); absent in plain
+    /// runs and in records older than these fields.
+    #[serde(flatten)]
+    pub placement: Placement,
+}
+
+/// Where a run executed when a sweep executor started it. Read from the
+/// environment of the task ([`Placement::from_env`]): Slurm's array
+/// variables, Kubernetes' completion index, or the local pool's.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// `local`, `slurm` or `k8s`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub executor: Option<String>,
+    /// The scheduler's job id (Slurm's `SLURM_ARRAY_JOB_ID`, the Kubernetes Job's name).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job_id: Option<String>,
+    /// The task's index in its array (the sweep variant it ran).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub array_index: Option<u64>,
+}
+
+/// Variables the local sweep pool sets for each worker (Slurm and
+/// Kubernetes set their own).
+pub const LOCAL_EXECUTOR_ENV: &str = "FDMLAB_EXECUTOR";
+/// The variant index the local pool gives a worker.
+pub const LOCAL_INDEX_ENV: &str = "FDMLAB_ARRAY_INDEX";
+/// The Job name a Kubernetes manifest written by `sweep` gives its pods.
+pub const K8S_JOB_ENV: &str = "FDMLAB_JOB_ID";
+
+impl Placement {
+    /// The placement of this process: Slurm (`SLURM_ARRAY_JOB_ID` and
+    /// `SLURM_ARRAY_TASK_ID`, or `SLURM_JOB_ID` outside an array), a
+    /// Kubernetes indexed Job (`JOB_COMPLETION_INDEX`), the local pool
+    /// ([`LOCAL_EXECUTOR_ENV`]), else none.
+    pub fn from_env() -> Placement {
+        Self::from_vars(|k| std::env::var(k).ok().filter(|v| !v.is_empty()))
+    }
+
+    /// [`Placement::from_env`] over any variable lookup.
+    pub fn from_vars(var: impl Fn(&str) -> Option<String>) -> Placement {
+        let index = |k: &str| var(k).and_then(|v| v.trim().parse::<u64>().ok());
+        if let Some(job) = var("SLURM_ARRAY_JOB_ID").or_else(|| var("SLURM_JOB_ID")) {
+            return Placement { executor: Some("slurm".into()), job_id: Some(job), array_index: index("SLURM_ARRAY_TASK_ID") };
+        }
+        if let Some(i) = index("JOB_COMPLETION_INDEX") {
+            return Placement { executor: Some("k8s".into()), job_id: var(K8S_JOB_ENV), array_index: Some(i) };
+        }
+        match var(LOCAL_EXECUTOR_ENV) {
+            Some(name) => Placement { executor: Some(name), job_id: None, array_index: index(LOCAL_INDEX_ENV) },
+            None => Placement::default(),
+        }
+    }
 }
 
 impl RunRecord {
@@ -118,5 +171,35 @@ impl RunRecord {
     /// Every blob hash the run references (inputs and outputs).
     pub fn blobs(&self) -> impl Iterator<Item = &Hash> {
         self.stages.iter().flat_map(|s| s.inputs.iter().map(|i| &i.hash).chain(s.outputs.iter().map(|o| &o.hash)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn placement(vars: &[(&str, &str)]) -> Placement {
+        Placement::from_vars(|k| vars.iter().find(|(n, _)| *n == k).map(|(_, v)| v.to_string()))
+    }
+
+    #[test]
+    fn placement_comes_from_the_executor_environment() {
+        let slurm = placement(&[("SLURM_ARRAY_JOB_ID", "41"), ("SLURM_JOB_ID", "43"), ("SLURM_ARRAY_TASK_ID", "2")]);
+        assert_eq!(slurm, Placement { executor: Some("slurm".into()), job_id: Some("41".into()), array_index: Some(2) });
+        let k8s = placement(&[("JOB_COMPLETION_INDEX", "5"), (K8S_JOB_ENV, "fdmlab-sweep-x")]);
+        assert_eq!(k8s, Placement { executor: Some("k8s".into()), job_id: Some("fdmlab-sweep-x".into()), array_index: Some(5) });
+        let local = placement(&[(LOCAL_EXECUTOR_ENV, "local"), (LOCAL_INDEX_ENV, "3")]);
+        assert_eq!(local, Placement { executor: Some("local".into()), job_id: None, array_index: Some(3) });
+        assert_eq!(placement(&[]), Placement::default());
+    }
+
+    #[test]
+    fn records_without_placement_still_load_and_plain_runs_write_none() {
+        let json = r#"{"id":"x","experiment":"e","kind":"k","spec_path":"s.toml","spec_hash":"h","seed":1,"fdmlab_version":"0.1.0",
+            "git_rev":null,"started_at":"t","wall_s":0.5,"stages":[],"reports_dir":null}"#;
+        let r: RunRecord = serde_json::from_str(json).expect("an old record loads");
+        assert_eq!(r.placement, Placement::default());
+        let back = serde_json::to_string(&r).expect("json");
+        assert!(!back.contains("executor") && !back.contains("array_index"), "{back}");
     }
 }

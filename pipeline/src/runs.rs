@@ -175,6 +175,7 @@ pub fn record_command(
         wall_s,
         stages: vec![stage],
         reports_dir: None,
+        placement: Default::default(),
     };
     write_record(store, &record)?;
     Ok(record)

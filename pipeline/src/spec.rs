@@ -33,7 +33,16 @@ pub struct SpecFile {
     pub text: String,
     /// The `[experiment]` header.
     pub header: Header,
+    /// Where input files are resolved: the spec's folder, or the folder a
+    /// sweep variant names in its [`INPUTS_MARKER`] line.
+    inputs_dir: PathBuf,
 }
+
+/// A generated spec (a sweep variant, stored away from the spec it came
+/// from) names the folder its input files are relative to on a comment line
+/// `# fdmlab-inputs = "REL"` (relative to its own folder), so `data/x.csv`
+/// means the same file as in the original spec.
+pub const INPUTS_MARKER: &str = "# fdmlab-inputs = ";
 
 /// First pass: only the header, other tables are the kind's business.
 #[derive(Deserialize)]
@@ -63,8 +72,13 @@ impl SpecFile {
 
     /// Parse a spec held in memory (`path` is used in messages and to resolve inputs).
     pub fn from_text(path: &Path, text: String) -> Result<SpecFile> {
-        let mut spec =
-            SpecFile { path: path.to_path_buf(), text, header: Header { name: String::new(), kind: String::new(), seed: 0, description: String::new() } };
+        let own_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let inputs_dir = match text.lines().find_map(|l| l.strip_prefix(INPUTS_MARKER)) {
+            Some(rel) => own_dir.join(rel.trim().trim_matches('"')),
+            None => own_dir,
+        };
+        let header = Header { name: String::new(), kind: String::new(), seed: 0, description: String::new() };
+        let mut spec = SpecFile { path: path.to_path_buf(), text, header, inputs_dir };
         let probe: Probe = toml::from_str(&spec.text).map_err(|e| spec.toml_error(&e))?;
         let Some(header) = probe.experiment else {
             return Err(spec.error_at(0, 0, "experiment", "missing the [experiment] table (name, kind, seed)"));
@@ -81,9 +95,17 @@ impl SpecFile {
         toml::from_str(&self.text).map_err(|e| self.toml_error(&e))
     }
 
-    /// The folder the spec lives in (inputs are relative to it).
+    /// The folder inputs are relative to: the spec's own folder, or the one
+    /// a generated spec names (see [`INPUTS_MARKER`]).
     pub fn dir(&self) -> PathBuf {
-        self.path.parent().map(Path::to_path_buf).unwrap_or_default()
+        self.inputs_dir.clone()
+    }
+
+    /// The same spec with inputs resolved relative to `dir` (a sweep
+    /// variant checked before its file is written).
+    pub fn with_inputs_dir(mut self, dir: PathBuf) -> SpecFile {
+        self.inputs_dir = dir;
+        self
     }
 
     /// A located bad-value error for `key` (dotted path, e.g. `plant.tau_s`).

@@ -6,6 +6,8 @@
 //! runs/<run-id>/run.json run records
 //! reports/<experiment>/ materialised reports of the latest run
 //! tmp/                  staging area: every write lands here, then is renamed
+//! sweeps/<id>/          a sweep's variant specs (`<i>.toml`), task logs, job files
+//! remotes.json          named remote stores (`fdmlab remote add`)
 //! ```
 //! A write is temp-file + fsync + rename, so a killed process leaves at most a
 //! stray file in `tmp/`, never a partial blob. Reads re-hash and refuse corrupt blobs.
@@ -24,6 +26,8 @@ const RUNS: &str = "runs";
 const RUN_RECORD: &str = "run.json";
 const REPORTS: &str = "reports";
 const TMP: &str = "tmp";
+const SWEEPS: &str = "sweeps";
+const REMOTES: &str = "remotes.json";
 
 /// One file of `stages/`.
 #[derive(Debug, Clone)]
@@ -241,6 +245,17 @@ impl Store {
         write_staged(&self.tmp_dir(), &self.run_record_path(&record.id), &bytes, WriteKind::Run)
     }
 
+    /// The folder of sweep `id`: variant specs `<i>.toml`, `logs/<i>.log`,
+    /// the Slurm script and the Kubernetes manifest.
+    pub fn sweep_dir(&self, id: &str) -> PathBuf {
+        self.root.join(SWEEPS).join(id)
+    }
+
+    /// The file naming the store's remotes.
+    pub fn remotes_path(&self) -> PathBuf {
+        self.root.join(REMOTES)
+    }
+
     /// Where the latest report of `experiment` is, relative to the store root
     /// (what run records hold, so they name no machine path).
     pub fn report_dir_relative(experiment: &str) -> PathBuf {
@@ -371,12 +386,18 @@ fn test_pause(kind: WriteKind) {
     }
 }
 
-/// A name unique across processes and threads: prefix, pid, nanos, counter.
+/// A name unique across threads, processes and the nodes of a cluster
+/// sharing one store: prefix, host, pid, nanos, counter.
 pub fn unique_name(prefix: &str) -> String {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
+    static HOST: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    let host = HOST.get_or_init(|| {
+        let name = fs::read_to_string("/proc/sys/kernel/hostname").ok().or_else(|| std::env::var("HOSTNAME").ok()).unwrap_or_default();
+        name.trim().chars().filter(|c| c.is_ascii_alphanumeric() || *c == '-').take(32).collect()
+    });
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
-    format!("{prefix}-{}-{nanos}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed))
+    format!("{prefix}-{host}-{}-{nanos}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed))
 }
 
 /// Blobs are immutable: drop write permission (best effort; root ignores it).

@@ -18,6 +18,8 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         repeat: u32,
     },
+    /// Sweeps: machinery per variant vs direct runs; push/pull vs the bare object-store client (`--remote`).
+    Sweep(super::sweep::BenchArgs),
     /// H-Bot twin: a 1 s move, and screening + L27 + confirmation.
     Hbot(super::hbot::BenchArgs),
     /// Thermal identification (all families, orders 1..8) vs SIPPY's N4SID.
@@ -42,6 +44,7 @@ pub enum BenchCommand {
 pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
+        BenchCommand::Sweep(a) => super::sweep::bench(a, ctx),
         BenchCommand::Hbot(a) => super::hbot::bench(a, ctx),
         BenchCommand::Thermal(a) => super::thermal::bench(a, ctx),
         BenchCommand::Discrepancy(a) => super::discrepancy::bench(a, ctx),

@@ -30,7 +30,7 @@ pub fn run(args: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         engine::validate(s)?;
     }
     let store = ctx.store()?;
-    let opts = RunOptions { force: args.force, progress: ctx.progress() };
+    let opts = RunOptions { force: args.force, progress: ctx.progress(), placement: fdmlab_pipeline::records::Placement::from_env() };
     let mut records = Vec::new();
     for s in &specs {
         let rec = engine::run(&store, s, &opts)?;

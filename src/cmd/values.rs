@@ -182,3 +182,14 @@ pub enum DocFormatArg {
     /// `report.pdf`, the LaTeX compiled by `pdflatex`.
     Pdf,
 }
+
+/// Who runs a sweep's variants (`sweep --executor`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExecutorArg {
+    /// A pool of `fdmlab run` processes on this machine (`--jobs`).
+    Local,
+    /// One Slurm job array (`sbatch`), waited for.
+    Slurm,
+    /// Write a Kubernetes indexed Job manifest; run nothing.
+    K8sManifest,
+}

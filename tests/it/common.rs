@@ -87,3 +87,13 @@ pub fn copy_spec(sb: &Sandbox, name: &str) -> PathBuf {
 pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).to_string()
 }
+
+/// A variable a service started by `scripts/test.sh` exports (Slurm's
+/// `SLURM_CONF`, the S3 server's `AWS_ENDPOINT_URL`, …). Missing, the test
+/// fails: these tests never skip silently.
+pub fn service_env(var: &str) -> String {
+    match std::env::var(var) {
+        Ok(v) if !v.is_empty() => v,
+        _ => panic!("{var} is not set: run scripts/test.sh (starts Slurm/S3), or start scripts/services/*.sh by hand and source their env files"),
+    }
+}

@@ -10,6 +10,8 @@ mod foundation;
 mod hbot;
 mod pa;
 mod reports;
+mod scale_out;
+mod sweep;
 mod thermal;
 mod thermal_firmware;
 mod turns;
