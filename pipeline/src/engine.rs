@@ -125,7 +125,7 @@ fn run_stages(store: &Store, spec: &SpecFile, stages: Vec<Stage>, opts: &RunOpti
             }
             inputs.push(InputRef { name: format!("artifact:{label}"), hash: hash.clone() });
         }
-        let key = stage_key(&kind, stage, &inputs);
+        let key = stage_key(&kind, spec.header.seed, stage, &inputs);
         let cached = if opts.force { None } else { load_stage(store, &key, stage.version) };
         let (record, was_cached) = match cached {
             Some(r) => (r, true),

@@ -24,7 +24,8 @@ pub struct Selection {
     pub experiment: Option<String>,
 }
 
-/// The run records a selection names, oldest first; unknown ids and empty
+/// The run records a selection names: named runs in the order given, then
+/// `--latest`, then the experiment's runs oldest first; unknown ids and empty
 /// selections are bad input.
 pub fn select(store: &Store, sel: &Selection) -> Result<Vec<RunRecord>> {
     let mut out: Vec<RunRecord> = sel.runs.iter().map(|id| runs::find(store, id)).collect::<Result<_>>()?;
@@ -41,13 +42,16 @@ pub fn select(store: &Store, sel: &Selection) -> Result<Vec<RunRecord>> {
         if by_report.is_empty() {
             return Err(Error::bad_input(format!("no run of experiment `{name}` has a report (see `fdmlab runs list`)")));
         }
-        out.extend(by_report.into_values());
+        let mut runs: Vec<RunRecord> = by_report.into_values().collect();
+        runs.sort_by(|a, b| a.id.cmp(&b.id));
+        out.extend(runs);
     }
     if out.is_empty() {
         return Err(Error::bad_input("name at least one run, or give --latest or --experiment NAME"));
     }
-    out.sort_by(|a, b| a.id.cmp(&b.id));
-    out.dedup_by(|a, b| a.id == b.id);
+    // Named runs keep their order (a sweep's variants); a run named twice counts once.
+    let mut seen = BTreeSet::new();
+    out.retain(|r| seen.insert(r.id.clone()));
     Ok(out)
 }
 

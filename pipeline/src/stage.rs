@@ -187,14 +187,17 @@ impl StageInput<'_> {
 pub const CODE_IDENTITY: &str = concat!("fdmlab ", env!("CARGO_PKG_VERSION"));
 
 /// The cache key of a stage.
-pub fn stage_key(kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
-    key_of(CODE_IDENTITY, kind, stage, inputs)
+pub fn stage_key(kind: &str, seed: u64, stage: &Stage, inputs: &[InputRef]) -> String {
+    key_of(CODE_IDENTITY, kind, seed, stage, inputs)
 }
 
 /// The cache key of a stage as built by `code`.
-fn key_of(code: &str, kind: &str, stage: &Stage, inputs: &[InputRef]) -> String {
+fn key_of(code: &str, kind: &str, seed: u64, stage: &Stage, inputs: &[InputRef]) -> String {
+    // The seed is keyed too: every stage can draw from it (`StageInput::seed`),
+    // and two seeds must never share a result.
     let material = serde_json::json!({
         "kind": kind,
+        "seed": seed,
         "stage": stage.name,
         "version": stage.version,
         "code": code,
@@ -219,19 +222,21 @@ mod tests {
     }
 
     #[test]
-    fn the_key_changes_with_code_version_params_and_inputs() {
+    fn the_key_changes_with_code_version_params_seed_and_inputs() {
         let inputs = vec![InputRef { name: "a/b".into(), hash: Hash::of(b"b") }];
-        let base = key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &inputs);
-        assert_eq!(base, key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &inputs), "deterministic");
+        let base = key_of("fdmlab 0.1.0", "k", 7, &stage(1, 1.0), &inputs);
+        assert_eq!(base, key_of("fdmlab 0.1.0", "k", 7, &stage(1, 1.0), &inputs), "deterministic");
         for other in [
-            key_of("fdmlab 0.1.1", "k", &stage(1, 1.0), &inputs),
-            key_of("fdmlab 0.1.0", "k", &stage(2, 1.0), &inputs),
-            key_of("fdmlab 0.1.0", "k", &stage(1, 1.5), &inputs),
-            key_of("fdmlab 0.1.0", "other-kind", &stage(1, 1.0), &inputs),
-            key_of("fdmlab 0.1.0", "k", &stage(1, 1.0), &[InputRef { name: "a/b".into(), hash: Hash::of(b"c") }]),
+            key_of("fdmlab 0.1.1", "k", 7, &stage(1, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", 7, &stage(2, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", 7, &stage(1, 1.5), &inputs),
+            key_of("fdmlab 0.1.0", "other-kind", 7, &stage(1, 1.0), &inputs),
+            key_of("fdmlab 0.1.0", "k", 7, &stage(1, 1.0), &[InputRef { name: "a/b".into(), hash: Hash::of(b"c") }]),
+            // Another seed: a stage drawing from it must not reuse the first seed's result.
+            key_of("fdmlab 0.1.0", "k", 8, &stage(1, 1.0), &inputs),
         ] {
             assert_ne!(base, other);
         }
-        assert_eq!(stage_key("k", &stage(1, 1.0), &inputs), key_of(CODE_IDENTITY, "k", &stage(1, 1.0), &inputs));
+        assert_eq!(stage_key("k", 7, &stage(1, 1.0), &inputs), key_of(CODE_IDENTITY, "k", 7, &stage(1, 1.0), &inputs));
     }
 }

@@ -7,6 +7,7 @@ use super::values::ExecutorArg;
 use super::Ctx;
 use anyhow::{bail, Context};
 use fdmlab_pipeline::records::{K8S_JOB_ENV, LOCAL_EXECUTOR_ENV, LOCAL_INDEX_ENV};
+use fdmlab_pipeline::report;
 use fdmlab_pipeline::sweep::{self, SetArg, Sweep};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -57,7 +58,9 @@ pub fn sweep(args: SweepArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
     }
     let outcomes = sweep::outcomes(&store, &plan);
-    let value = serde_json::json!({"sweep": plan.id, "runs": outcomes});
+    let ok: Vec<String> = outcomes.iter().filter_map(|o| o.run.clone()).collect();
+    let report = comparison(&store, &plan.dir.join("report"), &ok);
+    let value = serde_json::json!({"sweep": plan.id, "runs": outcomes, "report": report.as_ref().map(|p| p.display().to_string())});
     ctx.emit(&value, || {
         let mut s = format!("sweep {} of {}: {} variant(s)\n", plan.id, plan.spec.display(), outcomes.len());
         for (i, o) in outcomes.iter().enumerate() {
@@ -69,9 +72,8 @@ pub fn sweep(args: SweepArgs, ctx: &Ctx) -> anyhow::Result<()> {
                 s += &format!("      log {}:\n{}", log.display(), tail(log, 5));
             }
         }
-        let ok: Vec<&str> = outcomes.iter().filter_map(|o| o.run.as_deref()).collect();
-        if !ok.is_empty() {
-            s += &format!("compare: fdmlab report {}\n", ok.join(" "));
+        if let Some(p) = &report {
+            s += &format!("comparison of {} variant(s): {}\n", ok.len(), p.display());
         }
         s
     });
@@ -80,6 +82,26 @@ pub fn sweep(args: SweepArgs, ctx: &Ctx) -> anyhow::Result<()> {
         bail!("{failed} of {} variant(s) failed (logs under {})", outcomes.len(), plan.dir.join("logs").display());
     }
     Ok(())
+}
+
+/// The comparison report (Markdown, HTML) of the finished variants in `dir`;
+/// `None` (with the reason on stderr) for fewer than two or when one has no report.
+fn comparison(store: &fdmlab_pipeline::Store, dir: &std::path::Path, runs: &[String]) -> Option<std::path::PathBuf> {
+    if runs.len() < 2 {
+        return None;
+    }
+    let made = (|| -> anyhow::Result<()> {
+        let records = report::select(store, &report::Selection { runs: runs.to_vec(), ..Default::default() })?;
+        let files = report::render(store, &records, &[fdmlab_reports::Format::Markdown, fdmlab_reports::Format::Html])?;
+        Ok(report::write_folder(dir, &files)?)
+    })();
+    match made {
+        Ok(()) => Some(dir.join("report.html")),
+        Err(e) => {
+            eprintln!("no comparison report: {e:#}");
+            None
+        }
+    }
 }
 
 /// The last `n` lines of a log, indented (or why it cannot be read).

@@ -120,6 +120,11 @@ fn push_then_pull_into_a_store_that_never_ran_it() {
     let out = &run["stages"][0]["outputs"][0]["hash"];
     assert_eq!(b.ok(&["cat", out.as_str().expect("hash")]), a.ok(&["cat", out.as_str().expect("hash")]));
     assert_eq!(b.json(&["pull"])["runs"], serde_json::json!([]));
+    // `report` renders the pulled run on a machine that never ran it, byte for byte as at home.
+    a.ok(&["report", &id, "--format", "md", "--out", "rep"]);
+    b.ok(&["report", &id, "--format", "md", "--out", "rep"]);
+    let md = |sb: &Sandbox| std::fs::read_to_string(sb.path().join("rep/report.md")).expect("report");
+    assert_eq!(md(&b), md(&a));
     // The pulled stage records are cache entries: running the spec in B runs no stage.
     let rerun = &b.json(&["run", copy_spec(&b, SPEC).to_str().expect("utf8")])[0];
     assert!(rerun["stages"].as_array().expect("stages").iter().all(|s| s["cached"] == true), "{rerun}");

@@ -70,6 +70,10 @@ fn local_sweep_runs_each_variant_once_with_its_own_record() {
         assert_eq!(record["stages"][0]["params"]["plant"]["tau_s"].as_f64(), r["set"]["plant.tau_s"].as_f64(), "{record}");
         assert!(r["metrics"].as_object().is_some_and(|m| !m.is_empty()), "{r}");
     }
+    // The sweep ends with one comparison of every variant: the varied values are the parameters that differ.
+    let md = std::fs::read_to_string(std::path::Path::new(out["report"].as_str().expect("report")).with_file_name("report.md")).expect("comparison");
+    assert!(md.contains("Comparison of 4 `thermal-ident` runs") && md.contains("| simulate.plant.tau_s | 80.0 | 80.0 | 95.0 | 95.0 |"), "{md}");
+    assert!(md.contains("| simulate.sensor.sigma_c | 0.2 | 0.4 | 0.2 | 0.4 |"), "{md}");
     // Run again: every variant is finished, nothing is submitted, same runs.
     let again = sb.json(&args);
     assert_eq!(again["sweep"], out["sweep"]);

@@ -495,7 +495,14 @@ fn q(pairs: &[(&str, String)]) -> BTreeMap<String, String> {
 /// direct, model vs baselines, and each scored print's curve.
 fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScores], twin_csv: Option<&[u8]>) -> Result<Report> {
     let mut r = Report::new(title);
-    r.paragraph("K_A regressor after Zimenko, Afanasev & Kolesnikov (2022): three dense layers (ReLU, ReLU, sigmoid) and a linear output, min–max scaling fitted on each training split, trained with Adam on burn's flex backend.");
+    let st = &km.settings;
+    r.paragraph(format!(
+        "K_A regressor after Zimenko, Afanasev & Kolesnikov (2022): {} hidden dense layers of widths {:?} and a linear output, min–max scaling fitted on each training split, trained with Adam on burn's flex backend for {} epochs from learning rate {}.",
+        st.hidden().len(),
+        st.hidden(),
+        st.epochs(),
+        st.learning_rate()
+    ));
     r.heading("Model vs baselines");
     let mut t = Table::new(format!("{}-fold cross-validation on {} rows (out-of-fold errors, s)", cv.folds, cv.rows), ["model", "MAE", "max error"]);
     for m in &cv.models {
