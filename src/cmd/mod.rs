@@ -39,17 +39,30 @@ impl Ctx {
     /// Print `value` as JSON with `--json`, else the human text.
     pub fn emit(&self, value: &serde_json::Value, human: impl FnOnce() -> String) {
         if self.json {
-            println!("{value}");
+            print_out(&value.to_string());
         } else {
             let text = human();
             if !text.is_empty() {
-                println!("{}", text.trim_end());
+                print_out(text.trim_end());
             }
         }
     }
     /// Progress bars only on a terminal, and never with `--json`.
     pub fn progress(&self) -> bool {
         !self.json && std::io::stdout().is_terminal()
+    }
+}
+
+/// Print a line to stdout. A reader that went away (`fdmlab runs list | head`)
+/// ends the program quietly, as in other Unix tools, instead of a panic.
+pub fn print_out(text: &str) {
+    use std::io::Write;
+    if let Err(e) = writeln!(std::io::stdout().lock(), "{text}") {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: writing to stdout: {e}");
+        std::process::exit(1);
     }
 }
 

@@ -56,3 +56,15 @@ fn tower_band_height_is_the_documented_default_everywhere() {
     let z: Vec<f64> = manifest["regions"].as_array().expect("regions").iter().map(|r| r["position_mm"].as_f64().expect("z")).collect();
     assert!(z.len() > 2 && z.windows(2).all(|w| (w[1] - w[0] - 2.0).abs() < 1e-9), "{z:?}");
 }
+
+#[test]
+fn a_closed_pipe_ends_output_quietly() {
+    // `fdmlab runs list | head -0`: the reader is gone before fdmlab writes.
+    let sb = Sandbox::new();
+    let mut child = sb.cmd(&["--json", "runs", "list"]).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn().expect("spawn");
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.code(), Some(0), "{err}");
+}
