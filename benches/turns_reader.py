@@ -39,9 +39,18 @@ def read(path, tol=0.005):
                 if not code:
                     continue
             name = code[0].upper()
+            if name in ("M23", "M28", "M30", "M32", "M117", "M118", "M928"):
+                continue  # free text
             words = {}
             for tok in code[1:]:
-                words[tok[0].upper()] = float(tok[1:]) if len(tok) > 1 else float("nan")
+                try:
+                    words[tok[0].upper()] = float(tok[1:]) if len(tok) > 1 else float("nan")
+                except ValueError:
+                    # Like the Rust reader's motion mode: non-numeric words of M
+                    # commands (`M115 U3.11.0`, `M862.3 P "MK3S"`) read as NaN.
+                    if name.startswith("G"):
+                        raise
+                    words[tok[0].upper()] = float("nan")
             if name in ("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03"):
                 if "F" in words:
                     feed = words["F"] * scale / 60.0

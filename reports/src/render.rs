@@ -1,4 +1,4 @@
-//! Document writers: Markdown (+ SVG and PNG plots beside it), one
+//! Document writers: Markdown (+ SVG plots beside it), one
 //! self-contained HTML file, and LaTeX (a standalone `report.tex` plus
 //! `\input`-ready `table-N.tex` / `figure-N.tex`). Every table and figure
 //! carries a source line naming the run(s) and artifact hashes it came from.
@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// An output format of [`render`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Format {
-    /// `report.md`, `plot-N.svg`, `plot-N.png`.
+    /// `report.md`, `plot-N.svg`.
     Markdown,
     /// `report.html` (plots inlined as SVG, no external reference).
     Html,
@@ -82,7 +82,6 @@ pub fn render(report: &Report, sources: &[Provenance], formats: &[Format]) -> Re
                 for (n, p) in plots(&doc).enumerate() {
                     files.push(file(&format!("plot-{}.svg", n + 1), "image/svg+xml", p.to_svg()?.into_bytes()));
                 }
-                want_png = true;
             }
             Format::Html => files.push(file("report.html", "text/html", html(&doc, source.as_deref())?.into_bytes())),
             Format::Latex => {

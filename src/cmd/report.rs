@@ -94,7 +94,7 @@ fn render(store: &fdmlab_pipeline::Store, records: &[RunRecord], formats: &[DocF
     }
     let mut files = report::render(store, records, &wanted)?;
     if has(DocFormatArg::Pdf) {
-        let is_latex = |f: &RenderedFile| f.name.ends_with(".tex") || (f.name.ends_with(".png") && !has(DocFormatArg::Md));
+        let is_latex = |f: &RenderedFile| f.name.ends_with(".tex") || f.name.ends_with(".png");
         let pdf = report::compile_pdf(store, &files)?;
         if !has(DocFormatArg::Latex) {
             files.retain(|f| !is_latex(f));

@@ -173,7 +173,7 @@ mod tests {
 /// A document format of `fdmlab report` / `fdmlab diff`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum DocFormatArg {
-    /// `report.md` with `plot-N.svg` and `plot-N.png` beside it.
+    /// `report.md` with `plot-N.svg` beside it.
     Md,
     /// One self-contained `report.html`.
     Html,
