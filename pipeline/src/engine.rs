@@ -254,7 +254,7 @@ fn write_lock(store: &Store, spec: &SpecFile, record: &RunRecord) -> Result<()> 
 /// provenance) into the store's report folder of the experiment; returns that
 /// folder relative to the store root, `None` when the kind writes no report.
 fn materialise_reports(store: &Store, record: &RunRecord) -> Result<Option<PathBuf>> {
-    if !record.stages.iter().any(|s| s.outputs.iter().any(|o| o.name == crate::report::REPORT_JSON)) {
+    if !crate::report::has_report(record) {
         return Ok(None);
     }
     let files = crate::report::render(store, std::slice::from_ref(record), &fdmlab_reports::Format::ALL)?;

@@ -55,6 +55,11 @@ pub fn select(store: &Store, sel: &Selection) -> Result<Vec<RunRecord>> {
     Ok(out)
 }
 
+/// True when the run stored a report document.
+pub fn has_report(r: &RunRecord) -> bool {
+    report_output(r).is_some()
+}
+
 /// The stage that wrote the run's report and the report's hash.
 fn report_output(r: &RunRecord) -> Option<(&StageRun, String)> {
     r.stages.iter().rev().find_map(|s| s.outputs.iter().find(|o| o.name == REPORT_JSON).map(|o| (s, o.hash.0.clone())))
@@ -198,10 +203,12 @@ pub fn index(records: &[RunRecord]) -> Report {
 /// store's reports folder, beside each experiment's folder; returns the HTML path.
 pub fn write_index(store: &Store, records: &[RunRecord]) -> Result<std::path::PathBuf> {
     let doc = index(records);
-    let files =
-        fdmlab_reports::render(&doc, &[], &[Format::Markdown, Format::Html]).map_err(|e| Error::Stage { stage: "index".into(), message: e.to_string() })?;
+    let html = fdmlab_reports::render::html(&doc, None).map_err(|e| Error::Stage { stage: "index".into(), message: e.to_string() })?;
+    let files = [
+        RenderedFile { name: "index.md".into(), media_type: "text/markdown", bytes: fdmlab_reports::render::markdown(&doc, None).into_bytes() },
+        RenderedFile { name: "index.html".into(), media_type: "text/html", bytes: html.into_bytes() },
+    ];
     let dir = store.reports_dir();
-    let renamed: Vec<RenderedFile> = files.into_iter().map(|f| RenderedFile { name: f.name.replace("report.", "index."), ..f }).collect();
-    write_folder(&dir, &renamed)?;
+    write_folder(&dir, &files)?;
     Ok(dir.join("index.html"))
 }

@@ -93,11 +93,6 @@ impl Report {
     pub fn to_markdown(&self) -> String {
         render::markdown(self, None)
     }
-
-    /// Every file in every format, without a source line (see [`render()`]).
-    pub fn render(&self) -> Result<Vec<RenderedFile>, ReportError> {
-        render::render(self, &[], &Format::ALL)
-    }
 }
 
 /// Format a number for a table: `digits` significant digits, no noise.

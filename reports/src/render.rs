@@ -74,7 +74,6 @@ pub fn render(report: &Report, sources: &[Provenance], formats: &[Format]) -> Re
     }
     let source = source_line(sources);
     let mut files = Vec::new();
-    let mut want_png = false;
     for f in formats {
         match f {
             Format::Markdown => {
@@ -88,13 +87,10 @@ pub fn render(report: &Report, sources: &[Provenance], formats: &[Format]) -> Re
                 let (main, parts) = latex(&doc, source.as_deref());
                 files.push(file("report.tex", "application/x-tex", main.into_bytes()));
                 files.extend(parts.into_iter().map(|(name, text)| file(&name, "application/x-tex", text.into_bytes())));
-                want_png = true;
+                for (n, p) in plots(&doc).enumerate() {
+                    files.push(file(&format!("plot-{}.png", n + 1), "image/png", p.to_png()?));
+                }
             }
-        }
-    }
-    if want_png {
-        for (n, p) in plots(&doc).enumerate() {
-            files.push(file(&format!("plot-{}.png", n + 1), "image/png", p.to_png()?));
         }
     }
     Ok(files)
