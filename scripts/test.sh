@@ -6,10 +6,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
 
-# Debian packages the report tests drive: headless Chromium (HTML screenshots),
-# TeX (LaTeX → PDF), poppler (PDF page count).
+# Debian packages the tests drive: headless Chromium (HTML screenshots),
+# TeX (LaTeX → PDF), poppler (PDF page count), PrusaSlicer (expands the
+# Marlin K_A export's start-G-code conditionals).
 need=()
 command -v chromium >/dev/null || need+=(chromium)
+command -v prusa-slicer >/dev/null || need+=(prusa-slicer)
 command -v pdflatex >/dev/null || need+=(texlive-latex-base texlive-latex-recommended texlive-latex-extra)
 command -v pdfinfo >/dev/null || need+=(poppler-utils)
 for s in scripts/services/*.sh; do

@@ -289,15 +289,17 @@ async fn pull_one(store: &Store, remote: &Remote, id: &str, t: &mut Transfer) ->
         record.blobs().map(|h| Hash::parse(h.as_str()).ok_or_else(|| bad(format!("`{h}` is not a blob hash")))).collect::<Result<_>>()?;
     let todo: Vec<Hash> = blobs.iter().filter(|h| store.get(h).is_err()).cloned().collect();
     t.skipped += blobs.len() - todo.len();
-    // 1. Blobs: each re-hashed before `Store::put` renames it into place.
+    // 1. Blobs: each re-hashed before `Store::put_as` renames it into place,
+    //    on the blocking pool so downloads go on while it hashes and fsyncs.
     let sizes: Vec<u64> = futures::stream::iter(todo.into_iter().map(|h| async move {
         let bytes = remote.get(&blob_key(&h)).await?;
-        let actual = Hash::of(&bytes);
-        if actual != h {
-            return Err(Error::Store(format!("remote {}: blob {h} is corrupt (content hashes to {actual})", remote.url)));
-        }
-        store.put(&bytes)?;
-        Ok(bytes.len() as u64)
+        let (store, url) = (store.clone(), remote.url.clone());
+        tokio::task::spawn_blocking(move || {
+            store.put_as(&h, &bytes).map_err(|e| Error::Store(format!("remote {url}: {e}")))?;
+            Ok::<u64, Error>(bytes.len() as u64)
+        })
+        .await
+        .map_err(|e| Error::Store(format!("remote {}: a blob write stopped: {e}", remote.url)))?
     }))
     .buffer_unordered(CONCURRENCY)
     .try_collect()

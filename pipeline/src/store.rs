@@ -107,12 +107,27 @@ impl Store {
     /// a stored blob that no longer hashes to its name is replaced.
     pub fn put(&self, bytes: &[u8]) -> Result<Hash> {
         let hash = Hash::of(bytes);
-        let path = self.blob_path(&hash);
-        if !path.is_file() || self.get(&hash).is_err() {
+        self.write_blob(&hash, bytes)?;
+        Ok(hash)
+    }
+
+    /// Store `bytes` that must hash to `expected` (a blob received from
+    /// elsewhere); refuses them, writing nothing, when they do not.
+    pub fn put_as(&self, expected: &Hash, bytes: &[u8]) -> Result<()> {
+        let actual = Hash::of(bytes);
+        if actual != *expected {
+            return Err(Error::Store(format!("blob {expected} is corrupt (content hashes to {actual})")));
+        }
+        self.write_blob(expected, bytes)
+    }
+
+    fn write_blob(&self, hash: &Hash, bytes: &[u8]) -> Result<()> {
+        let path = self.blob_path(hash);
+        if !path.is_file() || self.get(hash).is_err() {
             write_staged(&self.tmp_dir(), &path, bytes, WriteKind::Blob)?;
             make_readonly(&path);
         }
-        Ok(hash)
+        Ok(())
     }
 
     /// Read a blob and check its content still hashes to its name.

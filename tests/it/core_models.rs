@@ -26,7 +26,7 @@ fn first_order_spec_on_exact_data_recovers_gain_and_time_constant() {
 }
 
 #[test]
-fn fopdt_from_marlin_and_klipper_logs_recovers_gain_and_time_constant() {
+fn marlin_and_klipper_logs_are_read_and_fopdt_recovers_gain_and_time_constant() {
     // 22 °C + 230·(1 − e^{−t/95}) at full duty, rounded to 0.01 °C (Marlin) and
     // 0.1 °C (Klipper): K = 230 °C per unit duty, τ = 95 s, no dead time.
     let sb = Sandbox::new();
@@ -43,6 +43,7 @@ fn fopdt_from_marlin_and_klipper_logs_recovers_gain_and_time_constant() {
         let mut args = vec!["thermal", "identify", file, "--families", "fopdt", "--orders", "1"];
         args.extend(extra);
         let v = sb.json(&args);
+        assert_eq!(v["rows"], 400, "{file}");
         let hash = v["models"][0]["model"].as_str().expect("model hash");
         let model: serde_json::Value = serde_json::from_str(&sb.ok(&["cat", hash])).expect("model json");
         let f = &model["fopdt"];
@@ -83,9 +84,9 @@ fn advance(gcode: &str) -> f64 {
     gcode.lines().find_map(|l| l.trim().strip_prefix("SET_PRESSURE_ADVANCE ADVANCE=")).and_then(|v| v.trim().parse().ok()).unwrap_or(f64::NAN)
 }
 
-#[test]
-fn klipper_macro_interpolates_k_when_rendered_by_a_jinja_engine() {
-    let sb = Sandbox::new();
+/// A K_A model trained on a smooth synthetic table (PLA and PETG, 210–240 °C in
+/// 5 °C steps, three layer heights); returns its run id.
+fn trained_ka(sb: &Sandbox) -> String {
     let mut csv = String::from("material,hotend_c,layer_mm,k\n");
     for (m, base) in [("PLA", 0.6), ("PETG", 0.9)] {
         for t in 0..7 {
@@ -96,15 +97,23 @@ fn klipper_macro_interpolates_k_when_rendered_by_a_jinja_engine() {
         }
     }
     sb.write("t.csv", &csv);
-    let run = sb.json(&["ka", "train", "--data", "t.csv", "--target", "k", "--epochs", "20", "--folds", "2"])["run"].as_str().expect("run id").to_string();
+    sb.json(&["ka", "train", "--data", "t.csv", "--target", "k", "--epochs", "20", "--folds", "2"])["run"].as_str().expect("run id").to_string()
+}
+
+/// K at a table temperature asked of `ka predict` (the path the export's table
+/// does not share), rounded to the table's 4 decimals.
+fn k_at(sb: &Sandbox, run: &str, material: &str, t: f64) -> f64 {
+    let v = sb.json(&["ka", "predict", "--model", run, "--set", &format!("material={material},hotend_c={t},layer_mm=0.2")]);
+    (v["k"].as_f64().expect("k").max(0.0) * 1e4).round() / 1e4
+}
+
+#[test]
+fn klipper_macro_interpolates_k_when_rendered_by_a_jinja_engine() {
+    let sb = Sandbox::new();
+    let run = trained_ka(&sb);
     let cfg = sb.ok(&["export", "ka", "--model", &run, "--format", "klipper", "--set", "layer_mm=0.2", "--temp-step", "5"]);
     let template = klipper_gcode(&cfg, "FDMLAB_PA");
-    // K at the table's grid temperatures, each asked of `ka predict` (the path the
-    // export's table does not share), rounded to the table's 4 decimals.
-    let k_at = |m: &str, t: f64| -> f64 {
-        let v = sb.json(&["ka", "predict", "--model", &run, "--set", &format!("material={m},hotend_c={t},layer_mm=0.2")]);
-        (v["k"].as_f64().expect("k").max(0.0) * 1e4).round() / 1e4
-    };
+    let k_at = |m: &str, t: f64| k_at(&sb, &run, m, t);
     // Off the 5 °C grid: 217.3 °C lies 46 % of the way from 215 to 220 °C; the
     // macro interpolates linearly and prints 4 decimals (± half a unit: 5e-5).
     let (k215, k220) = (k_at("PLA", 215.0), k_at("PLA", 220.0));
@@ -121,4 +130,63 @@ fn klipper_macro_interpolates_k_when_rendered_by_a_jinja_engine() {
     // A material the model never saw fails the command instead of printing a K.
     let err = render_klipper(&template, minijinja::context! { MATERIAL => "ABS", TEMP => "230" }, 0.0).expect_err("unknown material");
     assert!(err.to_string().contains("no K for material ABS"), "{err}");
+}
+
+/// A closed `size` mm cube as ASCII STL (12 facets, outward winding).
+fn cube_stl(size: f64) -> String {
+    let v = |i: usize| [(i & 1) as f64 * size, (i >> 1 & 1) as f64 * size, (i >> 2 & 1) as f64 * size];
+    let faces = [[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]];
+    let mut s = String::from("solid cube\n");
+    for f in faces {
+        s += " facet normal 0 0 0\n  outer loop\n";
+        for i in f {
+            let [x, y, z] = v(i);
+            s += &format!("   vertex {x} {y} {z}\n");
+        }
+        s += "  endloop\n endfacet\n";
+    }
+    s + "endsolid cube\n"
+}
+
+#[test]
+fn marlin_snippet_chooses_k_when_expanded_by_prusaslicer() {
+    // The Marlin export is start G-code in the slicer's macro language: PrusaSlicer
+    // (Debian's package; scripts/test.sh installs it) slices a cube with it and
+    // must print the `M900 K` of the table row nearest the first-layer
+    // temperature (the rows are 5 °C apart: the bins switch half way).
+    let sb = Sandbox::new();
+    let run = trained_ka(&sb);
+    let snippet = sb.ok(&["export", "ka", "--model", &run, "--format", "marlin", "--set", "layer_mm=0.2", "--temp-step", "5"]);
+    sb.write("cube.stl", &cube_stl(10.0));
+    let cases = [
+        ("PLA", 212, Some(k_at(&sb, &run, "PLA", 210.0))),
+        ("PLA", 213, Some(k_at(&sb, &run, "PLA", 215.0))),
+        ("PETG", 200, Some(k_at(&sb, &run, "PETG", 210.0))),
+        ("PETG", 238, Some(k_at(&sb, &run, "PETG", 240.0))),
+        ("ABS", 230, None),
+    ];
+    for (material, temp, want) in cases {
+        let ini = format!(
+            "filament_type = {material}\nfirst_layer_temperature = {temp}\ntemperature = {temp}\nstart_gcode = {}\n",
+            snippet.trim_end().replace('\n', "\\n")
+        );
+        sb.write("cfg.ini", &ini);
+        let out = sb.path().join("out.gcode");
+        let status = std::process::Command::new("prusa-slicer")
+            .current_dir(sb.path())
+            .args(["--export-gcode", "--load", "cfg.ini", "cube.stl", "--output"])
+            .arg(&out)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .expect("prusa-slicer (Debian's package; run scripts/test.sh)");
+        assert!(status.success(), "{material} {temp}: prusa-slicer failed");
+        let gcode = std::fs::read_to_string(&out).expect("sliced G-code");
+        let m900: Vec<&str> = gcode.lines().filter(|l| l.starts_with("M900")).collect();
+        assert_eq!(m900.len(), 1, "{material} {temp}: {m900:?}");
+        let k: f64 = m900[0].trim_start_matches("M900 K").split(';').next().and_then(|v| v.trim().parse().ok()).expect("M900 K value");
+        match want {
+            Some(want) => assert!((k - want).abs() <= 1e-12, "{material} {temp} °C: M900 K{k}, want {want}"),
+            None => assert!(k == 0.0 && m900[0].contains("no fdmlab K_A"), "{material}: {}", m900[0]),
+        }
+    }
 }

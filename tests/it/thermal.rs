@@ -78,29 +78,6 @@ fn bad_log_fails_with_file_row_and_column() {
 }
 
 #[test]
-fn marlin_and_klipper_logs_are_read() {
-    let sb = Sandbox::new();
-    // A first-order response sampled at 1 Hz: 22 °C + 230·(1 − e^{−t/95}) at full duty.
-    let mut marlin = String::new();
-    let mut klipper = String::new();
-    for k in 0..400 {
-        let t = 22.0 + 230.0 * (1.0 - (-(k as f64) / 95.0).exp());
-        marlin.push_str(&format!("2024-03-01 12:{:02}:{:02},000 - Recv:  T:{t:.2} /250.00 B:22.00 /0.00 @:127 B@:0\n", k / 60, k % 60));
-        klipper.push_str(&format!("Stats {:.1}: gcodein=0 extruder: target=250 temp={t:.1} pwm=1.000 sysload=0.1\n", 100.0 + k as f64));
-    }
-    sb.write("serial.log", &marlin);
-    sb.write("klippy.log", &klipper);
-    for (file, extra) in [("serial.log", vec![]), ("klippy.log", vec!["--resample", "1"])] {
-        let mut args = vec!["thermal", "identify", file, "--families", "fopdt", "--orders", "1"];
-        args.extend(extra);
-        let v = sb.json(&args);
-        assert_eq!(v["rows"], 400);
-        // Noise-free apart from 0.01/0.1 °C rounding: FOPDT fits > 99.9 %.
-        assert!(v["models"][0]["fit_percent"].as_f64().expect("fit") > 99.9, "{file}: {v}");
-    }
-}
-
-#[test]
 fn exports_and_gcode() {
     let sb = Sandbox::new();
     sb.ok(&["thermal", "grid", "--out-dir", "grid", "--seed", "4"]);
@@ -217,4 +194,26 @@ fn unreadable_inputs_are_bad_input_with_a_location() {
     }
     let out = sb.run(&["thermal", "identify", "latin1.csv"]);
     assert!(crate::common::stderr(&out).contains("latin1.csv:3: `text`: not valid UTF-8"), "{}", crate::common::stderr(&out));
+}
+
+#[test]
+fn thermal_grid_limits_are_located_at_their_keys() {
+    // One case per section of the validated grid spec (ValidGrid's table).
+    let good = std::fs::read_to_string(crate::common::experiments().join("thermal-grid.toml")).expect("spec");
+    let cases = [
+        ("dt_s = 1.0", "dt_s = 20.0", "`protocol.dt_s`: must be in (0, 10] s"),
+        ("pole_s = -0.02 ", "pole_s = 0.5 ", "`control.pole_s`: must be in (−10, 0) 1/s"),
+        ("filament_heat_j_k_mm = 0.0056", "filament_heat_j_k_mm = -1.0", "`export.filament_heat_j_k_mm`: must be ≥ 0"),
+        ("\"tf\"]", "\"greybox\"]", "`identify.families`"),
+        ("horizon = 20", "horizon = 4", "`identify.orders`"),
+    ];
+    for (from, to, expected) in cases {
+        assert!(good.contains(from), "{from}");
+        let sb = Sandbox::new();
+        let spec = sb.write("thermal-grid.toml", &good.replace(from, to));
+        let out = sb.run(&["validate", spec.to_str().expect("utf8")]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{to}: {err}");
+        assert!(err.contains("thermal-grid.toml:") && err.contains(expected), "{to}: expected `{expected}` in {err}");
+    }
 }

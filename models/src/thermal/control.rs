@@ -419,11 +419,17 @@ pub fn simc_pi(p: &Fopdt, dt_s: f64) -> Pid {
     Pid { kp: kc, ki: kc / ti, kd: 0.0, rule: format!("SIMC PI, tau_c = {tc} s") }
 }
 
-/// IMC PID for FOPDT (Rivera, Morari & Skogestad 1986, table 1, row 5):
-/// `Kc = (2τ+θ)/(K(2λ+θ))`, `τI = τ + θ/2`, `τD = τθ/(2τ+θ)`, λ = max(0.8θ, 0.1τ, one sample).
+/// IMC PID for FOPDT with the "aggressive" closed-loop time constant
+/// λ = max(0.8θ, 0.1τ) (Rivera et al. 1986 advise λ > 0.8θ), floored at one sample.
 pub fn imc_pid(p: &Fopdt, dt_s: f64) -> Pid {
+    imc_pid_with(p, (0.8 * p.dead_time_s).max(0.1 * p.tau_s).max(dt_s))
+}
+
+/// IMC PID for FOPDT at closed-loop time constant `lambda` (Rivera, Morari &
+/// Skogestad 1986, table 1, row 5; Seborg et al., table 12.1):
+/// `Kc = (2τ+θ)/(K(2λ+θ))`, `τI = τ + θ/2`, `τD = τθ/(2τ+θ)`.
+pub fn imc_pid_with(p: &Fopdt, lambda: f64) -> Pid {
     let (tau, theta) = (p.tau_s, p.dead_time_s);
-    let lambda = (0.8 * theta).max(0.1 * tau).max(dt_s);
     let kc = (2.0 * tau + theta) / (p.gain_c * (2.0 * lambda + theta));
     let ti = tau + theta / 2.0;
     let td = tau * theta / (2.0 * tau + theta);
@@ -623,6 +629,26 @@ mod tests {
         // τI = min(τ1, 4(τc + θ)): a slow plant (τ1 = 100, θ = 1) takes the 8θ cap.
         let slow = simc_pi(&Fopdt { gain_c: 2.0, tau_s: 100.0, dead_time_s: 1.0 }, 0.01);
         assert!((slow.kp - 25.0).abs() < 1e-12 && (slow.kp / slow.ki - 8.0).abs() < 1e-12, "{slow:?}");
+    }
+
+    #[test]
+    fn imc_matches_the_series_controller_on_seborgs_exercise() {
+        // Seborg, Edgar, Mellichamp & Doyle, exercise 12.6: K = 5, τ = 4, θ = 3,
+        // τc = θ = 3. The IMC controller for the first-order Padé plant is the
+        // series form q⁻¹ = (τs + 1)(θs/2 + 1) / (K(λ + θ/2)s); multiplied out
+        // its s⁰, s¹ and s² coefficients over s are ki, kp and kd. By hand:
+        // Kc = 5.5/(5·4.5) = 0.2444, τI = 5.5, τD = 12/11 = 1.0909.
+        let (k, tau, theta, lambda) = (5.0, 4.0, 3.0, 3.0);
+        let pid = imc_pid_with(&Fopdt { gain_c: k, tau_s: tau, dead_time_s: theta }, lambda);
+        let num = [1.0, tau + theta / 2.0, tau * theta / 2.0]; // (τs + 1)(θs/2 + 1)
+        let den = k * (lambda + theta / 2.0);
+        for (got, want) in [(pid.ki, num[0] / den), (pid.kp, num[1] / den), (pid.kd, num[2] / den)] {
+            assert!((got - want).abs() < 1e-12, "{pid:?}");
+        }
+        assert!((pid.kp - 0.2444).abs() < 5e-5 && (pid.kp / pid.ki - 5.5).abs() < 1e-12 && (pid.kd / pid.kp - 12.0 / 11.0).abs() < 1e-12, "{pid:?}");
+        // The default λ: 0.8θ = 2.4 s beats 0.1τ = 0.4 s and the 1 s sample.
+        let plant = Fopdt { gain_c: k, tau_s: tau, dead_time_s: theta };
+        assert_eq!(imc_pid(&plant, 1.0), imc_pid_with(&plant, 0.8 * theta));
     }
 
     #[test]

@@ -59,7 +59,8 @@ pub fn cross_validate(models: &[(String, ThermalModel, f64)], verification: &[Ex
         rms.push(r);
     }
     let mean: Vec<f64> = fit.iter().map(|r| if r.is_empty() { f64::NEG_INFINITY } else { r.iter().sum::<f64>() / r.len() as f64 }).collect();
-    let worst: Vec<f64> = fit.iter().map(|r| r.iter().copied().fold(f64::INFINITY, f64::min)).collect();
+    // Fits are never NaN here (a failed score is −∞), so the worst is exact.
+    let worst: Vec<f64> = fit.iter().map(|r| crate::metrics::nan_min(r.iter().copied())).collect();
     let mut order: Vec<usize> = (0..models.len()).collect();
     order.sort_by(|&a, &b| {
         let close = (mean[a] - mean[b]).abs() <= 0.1 || (mean[a].is_infinite() && mean[b].is_infinite());

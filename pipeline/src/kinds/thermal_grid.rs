@@ -173,6 +173,12 @@ struct IdentParams {
     horizon: usize,
 }
 
+impl IdentParams {
+    fn options(&self) -> IdentOptions {
+        IdentOptions { families: self.families.clone(), orders: self.orders.clone(), horizon: self.horizon, ..Default::default() }
+    }
+}
+
 /// `crossval`: no parameters of its own (every model × every verification set).
 #[derive(Debug, Clone, Serialize)]
 struct CrossvalParams {}
@@ -191,61 +197,99 @@ struct Entry {
     own_fit_percent: f64,
 }
 
-fn check(s: &GridSpec, spec: &SpecFile) -> Result<Vec<Family>> {
-    s.twin.check().map_err(|e| spec.bad_value("twin", e.to_string()))?;
-    let p = &s.protocol;
-    if !(p.dt_s > 0.0
-        && p.dt_s <= 10.0
-        && p.max_heat_s > 0.0
-        && p.max_heat_s <= 86_400.0
-        && (0.0..=86_400.0).contains(&p.cool_s)
-        && p.heat_duty > 0.0
-        && p.heat_duty <= 1.0)
-    {
-        return Err(spec.bad_value("protocol", "need 0 < dt_s ≤ 10, 0 < max_heat_s ≤ 86400, 0 ≤ cool_s ≤ 86400, 0 < heat_duty ≤ 1"));
+/// A checked `thermal-grid` spec (private fields): the only form the stages
+/// are built from. Limits (one table, also in docs/thermal.md):
+///
+/// | key | default | limits |
+/// |---|---|---|
+/// | `twin.*` | a slow Prusa-Mendel-era hotend | powers, capacity, losses, sensor τ > 0; the rest ≥ 0 ([`Twin::check`]) |
+/// | `protocol.dt_s` | 1 s | (0, 10] s |
+/// | `protocol.max_heat_s` | 1200 s | (0, 86400] s |
+/// | `protocol.cool_s` | 300 s | 0..86400 s |
+/// | `protocol.heat_duty` | 1 | (0, 1] |
+/// | `identify.families` | fopdt, arx, armax, n4sid, moesp, tf | black-box families (the grey box is always fitted) |
+/// | `identify.orders`, `identify.horizon` | 1..5, 20 | orders 1..20; largest order < horizon ≤ 100 |
+/// | `control.pole_s` | −0.02 1/s | (−10, 0) |
+/// | `control.target_c` | 108 °C | (0, 500) |
+/// | `control.duration_s` | 1500 s | (0, 86400] |
+/// | `export.heater_power_w` | 20 W | (0, 1000] |
+/// | `export.filament_heat_j_k_mm` | 0.0056 J/K/mm | ≥ 0 |
+/// | `gcode.*` | as `thermal gcode` | refused when the writer refuses them (bed, Z, temperature limits) |
+struct ValidGrid {
+    grid: GridParams,
+    ident: IdentParams,
+    control: ControlSection,
+    export: ExportSection,
+    gcode: Option<GcodeSection>,
+    title: String,
+}
+
+impl GridSpec {
+    /// Range checks, each located in the spec; the checked spec.
+    fn check(self, spec: &SpecFile) -> Result<ValidGrid> {
+        self.twin.check().map_err(|e| spec.bad_value("twin", e.to_string()))?;
+        let (p, c, x) = (&self.protocol, &self.control, &self.export);
+        let rules: [(&str, bool, &str); 10] = [
+            ("protocol.dt_s", p.dt_s > 0.0 && p.dt_s <= 10.0, "must be in (0, 10] s"),
+            ("protocol.max_heat_s", p.max_heat_s > 0.0 && p.max_heat_s <= 86_400.0, "must be in (0, 86400] s"),
+            ("protocol.cool_s", (0.0..=86_400.0).contains(&p.cool_s), "must be within 0..86400 s"),
+            ("protocol.heat_duty", p.heat_duty > 0.0 && p.heat_duty <= 1.0, "must be in (0, 1]"),
+            ("control.pole_s", c.pole_s < 0.0 && c.pole_s > -10.0, "must be in (−10, 0) 1/s"),
+            ("control.target_c", c.target_c > 0.0 && c.target_c < 500.0, "must be in (0, 500) °C"),
+            ("control.duration_s", c.duration_s > 0.0 && c.duration_s <= 86_400.0, "must be in (0, 86400] s"),
+            ("export.heater_power_w", x.heater_power_w > 0.0 && x.heater_power_w <= 1000.0, "must be in (0, 1000] W"),
+            ("export.filament_heat_j_k_mm", x.filament_heat_j_k_mm >= 0.0 && x.filament_heat_j_k_mm.is_finite(), "must be ≥ 0 J/K/mm"),
+            ("identify.families", !self.identify.families.is_empty(), "list black-box families (the grey box is always fitted on all sets)"),
+        ];
+        for (key, ok, why) in rules {
+            if !ok {
+                return Err(spec.bad_value(key, why));
+            }
+        }
+        let families = self
+            .identify
+            .families
+            .iter()
+            .map(|f| Family::parse(f))
+            .collect::<std::result::Result<Vec<_>, _>>()
+            .map_err(|e| spec.bad_value("identify.families", e.to_string()))?;
+        if families.contains(&Family::Greybox) {
+            return Err(spec.bad_value("identify.families", "list black-box families (the grey box is always fitted on all sets)"));
+        }
+        let ident = IdentParams { families, orders: self.identify.orders, horizon: self.identify.horizon };
+        ident.options().check().map_err(|e| spec.bad_value("identify.orders", e.to_string()))?;
+        if let Some(g) = &self.gcode {
+            // Refused settings stop the spec before any stage runs.
+            fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs()).map_err(|e| spec.bad_value("gcode", e.to_string()))?;
+        }
+        Ok(ValidGrid {
+            title: format!("{} — hotend identification across orders, cross-validation and control", self.experiment.name),
+            grid: GridParams { twin: self.twin, protocol: self.protocol },
+            ident,
+            control: self.control,
+            export: self.export,
+            gcode: self.gcode,
+        })
     }
-    let families = s
-        .identify
-        .families
-        .iter()
-        .map(|f| Family::parse(f))
-        .collect::<std::result::Result<Vec<_>, _>>()
-        .map_err(|e| spec.bad_value("identify.families", e.to_string()))?;
-    if families.is_empty() || families.contains(&Family::Greybox) {
-        return Err(spec.bad_value("identify.families", "list black-box families (the grey box is always fitted on all sets)"));
-    }
-    let opts = IdentOptions { families: families.clone(), orders: s.identify.orders.clone(), horizon: s.identify.horizon, ..Default::default() };
-    opts.check().map_err(|e| spec.bad_value("identify.orders", e.to_string()))?;
-    let c = &s.control;
-    if !(c.pole_s < 0.0 && c.pole_s > -10.0 && c.target_c > 0.0 && c.target_c < 500.0 && c.duration_s > 0.0 && c.duration_s <= 86_400.0) {
-        return Err(spec.bad_value("control", "need −10 < pole_s < 0, 0 < target_c < 500, 0 < duration_s ≤ 86400"));
-    }
-    if !(s.export.heater_power_w > 0.0 && s.export.heater_power_w <= 1000.0 && s.export.filament_heat_j_k_mm >= 0.0) {
-        return Err(spec.bad_value("export.heater_power_w", "must be within 0..1000 W"));
-    }
-    Ok(families)
+}
+
+/// Every run of the step-test protocol: identification then verification sets.
+fn all_runs() -> Vec<fdmlab_models::thermal::twin::GridRun> {
+    identification_grid().into_iter().chain(verification_grid()).collect()
 }
 
 /// Validate the spec and expand it into stages.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
-    let s: GridSpec = spec.parse()?;
-    let families = check(&s, spec)?;
-    let title = format!("{} — hotend identification across orders, cross-validation and control", s.experiment.name);
-    let ident_params = IdentParams { families, orders: s.identify.orders.clone(), horizon: s.identify.horizon };
-    let all_runs = || identification_grid().into_iter().chain(verification_grid()).collect::<Vec<_>>();
-    let gcode_stage = match &s.gcode {
-        Some(g) => {
-            // Refused settings stop the spec before any stage runs.
-            fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs()).map_err(|e| spec.bad_value("gcode", e.to_string()))?;
-            Some(Stage::typed("gcode", 1, g.clone(), move |_, g: &GcodeSection| {
-                let p = fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs())?;
-                StageOutput::default().add("steptest.gcode", "text/x-gcode", p.text.into_bytes()).add_json("steptest.gcode.json", &p.manifest)
-            })?)
-        }
+    let v = spec.parse::<GridSpec>()?.check(spec)?;
+    let gcode_stage = match v.gcode {
+        Some(g) => Some(Stage::typed("gcode", 1, g, move |_, g: &GcodeSection| {
+            let p = fdmlab_datasets::thermal::step_gcode::write(&g.settings(), &all_runs())?;
+            StageOutput::default().add("steptest.gcode", "text/x-gcode", p.text.into_bytes()).add_json("steptest.gcode.json", &p.manifest)
+        })?),
         None => None,
     };
     let mut stages = vec![
-        Stage::typed("grid", 1, GridParams { twin: s.twin, protocol: s.protocol }, |input, p| {
+        Stage::typed("grid", 1, v.grid, |input, p| {
             let ident = p.twin.grid(&identification_grid(), &p.protocol, input.seed)?;
             let verif = p.twin.grid(&verification_grid(), &p.protocol, input.seed.wrapping_add(1))?;
             let mut out = StageOutput::default().add_json("ident.json", &ident)?.add_json("verif.json", &verif)?;
@@ -254,9 +298,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             }
             Ok(out)
         })?,
-        Stage::typed("identify", 1, ident_params, |input, p| {
+        Stage::typed("identify", 1, v.ident, |input, p| {
             let ident: Vec<Experiment> = input.json("grid", "ident.json")?;
-            let opts = IdentOptions { families: p.families.clone(), orders: p.orders.clone(), horizon: p.horizon, ..Default::default() };
+            let opts = p.options();
             let mut entries = Vec::new();
             let mut failures = Vec::new();
             for (i, e) in ident.iter().enumerate() {
@@ -283,7 +327,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             Ok(StageOutput::default().add_json("crossval.json", &cv)?.metric("best_mean_fit_percent", best))
         })?
         .after(&["identify", "grid"]),
-        Stage::typed("control", 1, s.control.clone(), |input, c| {
+        Stage::typed("control", 1, v.control, |input, c| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
             let best = entries
@@ -323,7 +367,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .metric("imc_rms_after_reach", imc.metrics.rms_after_reach.unwrap_or(f64::NAN)))
         })?
         .after(&["identify", "crossval"]),
-        Stage::typed("export", 1, s.export.clone(), |input, x| {
+        Stage::typed("export", 1, v.export, |input, x| {
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let placement: control::Placement = input.json("control", "placement.json")?;
             let pid: control::Pid = input.json("control", "pid.json")?;
@@ -352,7 +396,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .add("thermal_gains.h", "text/x-c", ex::c_header(&placement, "best generaliser")?.into_bytes()))
         })?
         .after(&["identify", "control"]),
-        Stage::typed("report", 2, ReportParams { title }, |input, p| {
+        Stage::typed("report", 2, ReportParams { title: v.title }, |input, p| {
             let title = &p.title;
             let entries: Vec<Entry> = input.json("identify", "models.json")?;
             let cv: CrossValidation = input.json("crossval", "crossval.json")?;
