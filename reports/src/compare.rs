@@ -115,7 +115,7 @@ fn metric_table(labels: &[&str], metrics: &[SideBySide]) -> Table {
         } else {
             let all: Vec<f64> = nums.iter().flatten().copied().collect();
             let range = if all.len() == nums.len() {
-                all.iter().copied().fold(f64::NEG_INFINITY, f64::max) - all.iter().copied().fold(f64::INFINITY, f64::min)
+                fdmlab_models::metrics::nan_max(all.iter().copied()) - fdmlab_models::metrics::nan_min(all.iter().copied())
             } else {
                 f64::NAN
             };

@@ -75,11 +75,15 @@ impl LineLexer {
     pub fn lex(&mut self, raw: &[u8], line: usize, file: &str) -> Result<Lexed, DatasetError> {
         self.words.clear();
         self.args.clear();
-        let semi = raw.iter().position(|&b| b == b';');
+        // Code ends at a comment `;` or a RepRap checksum `*45`, whichever is first.
+        let (code_end, semi) = match memchr::memchr2(b';', b'*', raw) {
+            Some(i) if raw[i] == b';' => (i, Some(i)),
+            Some(i) => (i, memchr::memchr(b';', &raw[i..]).map(|j| i + j)),
+            None => (raw.len(), None),
+        };
         let comment = semi.map(|i| trim(raw, i + 1..raw.len()));
-        let code_end = semi.unwrap_or(raw.len());
-        // Strip a RepRap checksum `*45`.
-        let code_end = raw[..code_end].iter().position(|&b| b == b'*').unwrap_or(code_end);
+        // Only a line with a `"` can hold a string argument.
+        let quoted = memchr::memchr(b'"', &raw[..code_end]).is_some();
         let mut at = 0;
         let mut head = token(raw, &mut at, code_end);
         // Strip a RepRap line number `N123`.
@@ -108,7 +112,8 @@ impl LineLexer {
             let tb = &raw[t.clone()];
             // A quoted string value (`M862.3 P "MK3S"`, `M1000 S"a b"`, `NAME="a b"`):
             // it may hold spaces; it is no number, so its word reads NaN.
-            if let Some(q) = tb.iter().position(|&b| b == b'"').filter(|&q| q <= 1 || tb[q - 1] == b'=') {
+            let quote = if quoted { tb.iter().position(|&b| b == b'"').filter(|&q| q <= 1 || tb[q - 1] == b'=') } else { None };
+            if let Some(q) = quote {
                 let open = t.start + q;
                 let close = raw[open + 1..code_end].iter().position(|&b| b == b'"').map(|i| open + 1 + i);
                 let Some(close) = close else {

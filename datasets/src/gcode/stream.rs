@@ -12,6 +12,7 @@
 //! one move per chord, each carrying the arc's line.
 
 use std::io::BufRead;
+use std::sync::Arc;
 
 use fdmlab_models::turns::Move;
 
@@ -45,35 +46,45 @@ pub fn moves<R: BufRead>(reader: R, file: &str) -> MoveStream<R> {
 pub fn moves_with<R: BufRead>(reader: R, file: &str, options: ReadOptions) -> MoveStream<R> {
     MoveStream {
         reader,
-        file: file.to_string(),
-        options,
         buf: Vec::with_capacity(256),
-        line: 0,
         done: false,
-        // Motion only: a non-numeric word of an M command (`M115 U3.11.0`) is not an error.
-        lexer: LineLexer { lenient_m_words: true, ..LineLexer::default() },
-        machine: Machine::default(),
-        scale: 1.0,
-        print_accel: 0.0,
-        travel_accel: 0.0,
-        layer: 0,
-        marker_seen: false,
-        emitted_since_layer: false,
-        last_extrude_z: f64::NEG_INFINITY,
-        feature: String::new(),
-        arc: None,
+        st: Interpreter {
+            file: file.to_string(),
+            options,
+            line: 0,
+            // Motion only: a non-numeric word of an M command (`M115 U3.11.0`) is not an error.
+            lexer: LineLexer { lenient_m_words: true, ..LineLexer::default() },
+            machine: Machine::default(),
+            scale: 1.0,
+            print_accel: 0.0,
+            travel_accel: 0.0,
+            layer: 0,
+            marker_seen: false,
+            emitted_since_layer: false,
+            last_extrude_z: f64::NEG_INFINITY,
+            feature: Arc::from(""),
+            arc: None,
+        },
     }
 }
 
-/// Iterator of [`moves`]: holds one line buffer and one arc in progress.
+/// Iterator of [`moves`]: lines are read in place from the reader's buffer
+/// (copied only when one straddles two fills) and interpreted one at a time.
 #[derive(Debug)]
 pub struct MoveStream<R> {
     reader: R,
+    /// The start of a line that straddles the end of the reader's buffer.
+    buf: Vec<u8>,
+    done: bool,
+    st: Interpreter,
+}
+
+/// The interpreter's modal state, the line counter and one arc in progress.
+#[derive(Debug)]
+struct Interpreter {
     file: String,
     options: ReadOptions,
-    buf: Vec<u8>,
     line: usize,
-    done: bool,
     lexer: LineLexer,
     machine: Machine,
     /// 1 under `G21` (mm), 25.4 under `G20` (inches).
@@ -84,7 +95,8 @@ pub struct MoveStream<R> {
     marker_seen: bool,
     emitted_since_layer: bool,
     last_extrude_z: f64,
-    feature: String,
+    /// Shared by every move until the next `;TYPE:` marker.
+    feature: Arc<str>,
     arc: Option<ArcChords>,
 }
 
@@ -137,42 +149,51 @@ impl<R: BufRead> Iterator for MoveStream<R> {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some(arc) = self.arc.as_mut() {
-                if arc.k < arc.n {
-                    arc.k += 1;
-                    let k = arc.k;
-                    // Chord 1 starts at the exact start, not the one recomputed from the centre.
-                    let from = if k == 1 { arc.from } else { arc.point(k - 1) };
-                    let (to, line, feed) = (arc.point(k), arc.line, arc.feed_mm_s);
-                    if let Some(m) = self.emit(line, from, to, feed) {
-                        return Some(Ok(m));
-                    }
-                    continue;
-                }
-                self.arc = None;
+            if let Some(m) = self.st.next_chord() {
+                return Some(Ok(m));
             }
             if self.done {
                 return None;
             }
-            self.buf.clear();
-            match self.reader.read_until(b'\n', &mut self.buf) {
-                Ok(0) => {
+            let (result, used) = match self.reader.fill_buf() {
+                Err(source) => {
+                    self.done = true;
+                    return Some(Err(DatasetError::Io { path: self.st.file.clone(), source }));
+                }
+                // End of input: a last line without a newline, or nothing.
+                Ok([]) if self.buf.is_empty() => {
                     self.done = true;
                     return None;
                 }
-                Ok(_) => {}
-                Err(source) => {
+                Ok([]) => {
                     self.done = true;
-                    return Some(Err(DatasetError::Io { path: self.file.clone(), source }));
+                    let r = self.st.line(&self.buf);
+                    self.buf.clear();
+                    (r, 0)
                 }
-            }
-            self.line += 1;
-            match self.line_move() {
+                Ok(avail) => match memchr::memchr(b'\n', avail) {
+                    Some(i) if self.buf.is_empty() => (self.st.line(&avail[..=i]), i + 1),
+                    Some(i) => {
+                        self.buf.extend_from_slice(&avail[..=i]);
+                        let r = self.st.line(&self.buf);
+                        self.buf.clear();
+                        (r, i + 1)
+                    }
+                    None => {
+                        self.buf.extend_from_slice(avail);
+                        let n = avail.len();
+                        self.reader.consume(n);
+                        continue;
+                    }
+                },
+            };
+            self.reader.consume(used);
+            match result {
                 Ok(Some(m)) => return Some(Ok(m)),
                 Ok(None) => {}
                 Err(e) => {
                     self.done = true;
-                    self.arc = None;
+                    self.st.arc = None;
                     return Some(Err(e));
                 }
             }
@@ -180,17 +201,35 @@ impl<R: BufRead> Iterator for MoveStream<R> {
     }
 }
 
-impl<R: BufRead> MoveStream<R> {
+impl Interpreter {
     fn err(&self, field: &str, message: impl Into<String>) -> DatasetError {
         DatasetError::parse(&self.file, self.line, field, message)
     }
 
-    /// Interpret the line in `buf`; returns a straight move, or starts an arc.
-    fn line_move(&mut self) -> Result<Option<Move>, DatasetError> {
-        let buf = std::mem::take(&mut self.buf);
-        let out = self.interpret(&buf);
-        self.buf = buf;
-        out
+    /// The next chord of the arc in progress, if any.
+    fn next_chord(&mut self) -> Option<Move> {
+        while let Some(arc) = self.arc.as_mut() {
+            if arc.k >= arc.n {
+                self.arc = None;
+                break;
+            }
+            arc.k += 1;
+            let k = arc.k;
+            // Chord 1 starts at the exact start, not the one recomputed from the centre.
+            let from = if k == 1 { arc.from } else { arc.point(k - 1) };
+            let (to, line, feed) = (arc.point(k), arc.line, arc.feed_mm_s);
+            if let Some(m) = self.emit(line, from, to, feed) {
+                return Some(m);
+            }
+        }
+        None
+    }
+
+    /// Count and interpret one line: a straight move, or nothing (an arc starts
+    /// in [`Self::next_chord`]).
+    fn line(&mut self, raw: &[u8]) -> Result<Option<Move>, DatasetError> {
+        self.line += 1;
+        self.interpret(raw)
     }
 
     fn interpret(&mut self, raw: &[u8]) -> Result<Option<Move>, DatasetError> {
@@ -315,8 +354,7 @@ impl<R: BufRead> MoveStream<R> {
                 self.emitted_since_layer = false;
             }
         } else if let Some(t) = c.strip_prefix(b"TYPE:") {
-            self.feature.clear();
-            self.feature.push_str(String::from_utf8_lossy(t).trim());
+            self.feature = Arc::from(String::from_utf8_lossy(t).trim());
         }
     }
 
@@ -446,8 +484,8 @@ mod tests {
         let m = read(text).expect("reads");
         assert_eq!(m.iter().map(|m| m.layer).collect::<Vec<_>>(), vec![0, 0, 1, 1]);
         assert_eq!(m.iter().map(|m| m.accel_mm_s2).collect::<Vec<_>>(), vec![800.0, 3000.0, 1500.0, 500.0]);
-        assert_eq!(m[0].feature, "External perimeter");
-        assert_eq!(m[3].feature, "WALL-OUTER");
+        assert_eq!(&*m[0].feature, "External perimeter");
+        assert_eq!(&*m[3].feature, "WALL-OUTER");
     }
 
     #[test]
@@ -558,6 +596,32 @@ mod tests {
             for r in moves(&bytes[..], "fuzz") {
                 let _ = r;
             }
+        }
+
+        #[test]
+        fn lines_split_across_buffer_fills_read_the_same(
+            lines in proptest::collection::vec((0u8..5, -500i32..500, -500i32..500), 1..40),
+            capacity in 1usize..48,
+            newline_at_end in any::<bool>(),
+        ) {
+            // A tiny reader buffer splits lines (and CRLF pairs) at every place; the
+            // moves, their lines and the errors must equal those of one whole read.
+            let mut text = String::new();
+            for (kind, x, y) in &lines {
+                text += &match kind {
+                    0 => format!("G1 X{x} Y{y} E1 ; c{x}\n"),
+                    1 => format!("G0 X{y} Y{x}\r\n"),
+                    2 => ";TYPE:Perimeter\n".to_string(),
+                    3 => format!("G1 X{x} Y{y} *{y}\n"),
+                    _ => format!("G1 X{x} Y\n"),
+                };
+            }
+            if !newline_at_end {
+                text.pop();
+            }
+            let whole: Vec<_> = moves(text.as_bytes(), "w").map(|r| r.map_err(|e| e.to_string())).collect();
+            let split: Vec<_> = moves(std::io::BufReader::with_capacity(capacity, text.as_bytes()), "w").map(|r| r.map_err(|e| e.to_string())).collect();
+            prop_assert_eq!(whole, split);
         }
 
         #[test]

@@ -169,7 +169,7 @@ pub fn join(log: &RawLog, m: &StepManifest, manifest_file: &str) -> Result<(RawL
     }
     let t = &log.time_s;
     let dt = log.median_dt_s();
-    let min_target = m.runs.iter().map(|r| r.target_c).fold(f64::INFINITY, f64::min);
+    let min_target = fdmlab_models::metrics::nan_min(m.runs.iter().map(|r| r.target_c));
     let threshold = m.start_c + 0.5 * (min_target - m.start_c);
     // Heating indicator per sample, and where it comes from.
     let target = log.target_c.as_ref().filter(|v| v.iter().any(|x| *x >= threshold));

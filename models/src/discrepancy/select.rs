@@ -298,7 +298,7 @@ fn canonical_correlation(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
         return 0.0;
     }
     let m = DMatrix::from_fn(a.len(), b.len(), |i, j| dot(&a[i], &b[j]));
-    m.singular_values().iter().copied().fold(0.0, f64::max)
+    crate::metrics::nan_max(m.singular_values().iter().copied())
 }
 
 #[cfg(test)]

@@ -326,7 +326,7 @@ impl ThermalData {
             }
         }
         let m = nalgebra::Matrix3::from_fn(|i, j| s[i][j]);
-        let ymin = self.segments.iter().flat_map(|e| e.temperature_c.iter()).copied().fold(f64::INFINITY, f64::min);
+        let ymin = crate::metrics::nan_min(self.segments.iter().flat_map(|e| e.temperature_c.iter()).copied());
         let fallback = ThermalModel::base(0.5, 0.002, ymin.min(25.0));
         let Some(x) = m.lu().solve(&nalgebra::Vector3::new(rows[0], rows[1], rows[2])) else { return fallback };
         let (a, b, c) = (x[0], x[1], x[2]);

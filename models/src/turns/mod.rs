@@ -39,8 +39,24 @@ pub struct Move {
     pub extruding: bool,
     /// Layer counter (layer markers, or rising Z when a file has none).
     pub layer: u32,
-    /// Feature of the last `;TYPE:` marker (`Perimeter`, `WALL-OUTER`, …), or "".
-    pub feature: String,
+    /// Feature of the last `;TYPE:` marker (`Perimeter`, `WALL-OUTER`, …), or "";
+    /// shared by the moves of one feature, not copied per move.
+    #[serde(with = "shared_str")]
+    pub feature: std::sync::Arc<str>,
+}
+
+/// Serde for `Arc<str>` as a plain string (serde's own impl needs its `rc` feature).
+mod shared_str {
+    use serde::{Deserialize, Deserializer, Serializer};
+    use std::sync::Arc;
+
+    pub fn serialize<S: Serializer>(s: &Arc<str>, ser: S) -> Result<S::Ok, S::Error> {
+        ser.serialize_str(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(de: D) -> Result<Arc<str>, D::Error> {
+        String::deserialize(de).map(Arc::from)
+    }
 }
 
 impl Move {
@@ -143,7 +159,7 @@ pub(crate) mod test_paths {
                 accel_mm_s2: 0.0,
                 extruding: true,
                 layer: 0,
-                feature: String::new(),
+                feature: std::sync::Arc::from(""),
             })
             .collect()
     }
