@@ -119,16 +119,21 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         }
         r.table(t);
         for d in v.downstream {
-            let better = d.width_error_predicted < d.width_error_planner;
+            let verdict = if d.width_error_predicted < d.width_error_planner {
+                "lower"
+            } else if d.late_planner == 0 {
+                "the same: the buffer already knows every sharp corner before braking starts, so knowing it earlier changes nothing"
+            } else {
+                "not lower"
+            };
             r.paragraph(format!(
-                "At H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The mean absolute line-width error over extruding moves is {}% with the buffer alone and {}% with the prediction, which is {}.",
+                "At H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
                 d.horizon,
                 d.late_planner,
                 d.sharp,
                 d.late_predicted,
                 num(100.0 * d.width_error_planner, 3),
                 num(100.0 * d.width_error_predicted, 3),
-                if better { "lower" } else { "not lower" }
             ));
         }
     }

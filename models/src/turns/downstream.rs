@@ -95,17 +95,21 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
             (v_n, 0.0)
         }
     };
-    // Half the ramp of the first step: how far ahead the advance must look.
-    let lead = 0.5 * k * a / a_e;
+    // The advance a firmware that knows the whole event would command: each step
+    // Δ of K·v̇ (−Ka at braking, +2Ka at the corner, −Ka when cruise resumes) as a
+    // ramp at the extruder's limit, |Δ|/A_e long, centred on its speed change, so
+    // the pressure error it leaves is antisymmetric and integrates to zero.
+    let steps = [(0.0, -k * a), (t_b, 2.0 * k * a), (2.0 * t_b, -k * a)];
+    let ideal = |t: f64| -> f64 { steps.iter().map(|&(tau, d)| d * ((t - tau) * a_e / d.abs() + 0.5).clamp(0.0, 1.0)).sum() };
     let dt = 2e-4;
-    // Until the pressure has settled (3 K) after the re-acceleration.
-    let (t0, t1) = (-0.05 - lead, 2.0 * t_b + 3.0 * k);
+    // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
+    let (t0, t1) = (-0.05 - 0.5 * k * a / a_e, 2.0 * t_b + 3.0 * k);
     let steps = ((t1 - t0) / dt).ceil() as usize;
     let (mut p, mut u, mut worst) = (0.0f64, v_n, 0.0f64);
     for s in 0..steps {
         let t = t0 + s as f64 * dt;
-        // What the advance aims for: K·v̇ `lead` ahead, if the corner is known by now.
-        let target = if t >= t_know_s { k * head(t + lead).1 } else { 0.0 };
+        // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
+        let target = if t >= t_know_s { ideal(t) } else { 0.0 };
         p += (target - p).clamp(-a_e * dt, a_e * dt);
         // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
         let v_in = head(t + 0.5 * dt).0 + p;
@@ -164,7 +168,6 @@ mod tests {
     use super::*;
 
     #[test]
-    #[ignore = "issue #12 open: the advance known 1 s early leaves a larger defect (0.272) than one known at braking (0.231); the ramp model needs review"]
     fn known_in_time_the_advance_cancels_the_lag() {
         // Known long before braking, the ramped advance leaves only the rate
         // limit's error; known at the start of braking, the whole first ramp is
