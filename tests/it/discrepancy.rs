@@ -17,10 +17,9 @@ struct Verdict {
 }
 
 #[test]
-#[ignore = "issue #11 open: 4 of 20 effect-free logs name an effect (head_height, heater_saturation); the bar is 5 %"]
 fn hidden_effects_are_named_and_the_gap_shrinks() {
-    // 20 effect-free logs, 7 effects × 3 magnitudes × 2 noise levels, 21 pairs.
-    let opts = HiddenOptions { samples: 2400, seeds: 1, null_cases: 10, ..Default::default() };
+    // 20 effect-free logs, 7 effects × 3 magnitudes × 2 noise levels × 2 seeds, 21 pairs × 2 seeds.
+    let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, ..Default::default() };
     let cases = hidden::generate(&Twin::default(), &opts).expect("hidden set");
     let verdicts: Vec<Verdict> = std::thread::scope(|s| {
         let chunks: Vec<_> = cases
@@ -59,6 +58,7 @@ fn hidden_effects_are_named_and_the_gap_shrinks() {
     let right = qualifying.iter().filter(|v| v.named == v.truth).count();
     let wrong: Vec<String> = qualifying.iter().filter(|v| v.named != v.truth).map(|v| format!("{:?} → {:?}", v.truth, v.named)).collect();
     assert!(qualifying.len() >= 40, "{}", qualifying.len());
+    eprintln!("thermal hidden set: {false_named} of {} effect-free logs named an effect; {right} of {} qualifying cases right", null.len(), qualifying.len());
     // ≥ 95 % of cases whose effects exceed 3× noise RMS get exactly the right effects.
     assert!(right * 100 >= 95 * qualifying.len(), "{right} of {} right; wrong: {wrong:?}", qualifying.len());
     // Where the effects were named, the residual RMS falls by ≥ 50 %.
@@ -88,10 +88,17 @@ fn the_twin_grid_shows_fan_and_head_height_missing_from_the_heater_only_model() 
     let names: Vec<&str> = v["effects"].as_array().expect("effects").iter().map(|e| e["name"].as_str().expect("name")).collect();
     // The twin's physics has fan loss, near-bed loss and an 8 s thermistor lag; the base has none.
     assert!(names.contains(&"fan_cooling") && names.contains(&"head_height"), "{names:?}");
-    let fan = v["effects"].as_array().expect("effects").iter().find(|e| e["name"] == "fan_cooling").expect("fan");
-    // Twin: 0.05 W/K over 40 J/K = 1.25e-3 /s; the grid's four step tests pin it within 20 %.
-    let g = fan["parameters"]["fan_loss_1_s"].as_f64().expect("g_fan");
-    assert!((g / 1.25e-3 - 1.0).abs() < 0.2, "{g}");
+    // The twin's values (Twin::default: 0.05 and 0.02 W/K over 40 J/K, an 8 s
+    // thermistor), as the final refit of every parameter returns them. Grids of
+    // seeds 1–6 land within 1.2 % (σ = 0.3 °C over 3,400 samples): 5 % bound.
+    let param = |effect: &str, key: &str| -> f64 {
+        let e = v["effects"].as_array().expect("effects").iter().find(|e| e["name"] == effect).expect(effect);
+        e["parameters"][key].as_f64().expect(key)
+    };
+    for (effect, key, truth) in [("fan_cooling", "fan_loss_1_s", 1.25e-3), ("head_height", "near_bed_loss_1_s", 5e-4), ("sensor_lag", "sensor_tau_s", 8.0)] {
+        let got = param(effect, key);
+        assert!((got / truth - 1.0).abs() < 0.05, "{effect}: {key} = {got}, twin {truth}");
+    }
     assert!(v["after"]["rms"].as_f64().expect("rms") < 0.5 * v["before"]["rms"].as_f64().expect("rms"), "{v}");
     let keys: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
     assert_eq!(keys, ["after", "ambiguous", "before", "effects", "windows"]);

@@ -277,6 +277,10 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             break;
         }
     }
+    // Every parameter was re-identified with each later effect: report the final values.
+    for e in &mut effects {
+        e.parameters = domain.effect_parameters(&current, &e.name);
+    }
     let sim1 = domain.simulate(&current);
     let report = Report { effects, ambiguous, windows: stats::windows(&r0, sigma, &time_s), before: metrics(&y, &sim0), after: metrics(&y, &sim1) };
     Ok(Outcome {

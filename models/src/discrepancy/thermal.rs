@@ -163,10 +163,15 @@ impl ThermalModel {
     /// Simulated measured temperature, °C, on one experiment, from an
     /// equilibrium at the first measured sample.
     pub fn simulate(&self, e: &Experiment) -> Vec<f64> {
+        self.simulate_from(e, 0.0)
+    }
+
+    /// [`Self::simulate`] from an equilibrium `offset_c` above the first measured sample.
+    fn simulate_from(&self, e: &Experiment, offset_c: f64) -> Vec<f64> {
         let n = e.len();
         let dt = e.dt_s;
         let mut out = Vec::with_capacity(n);
-        let x0 = e.temperature_c.first().copied().unwrap_or(self.ambient_c) - self.ambient_c;
+        let x0 = e.temperature_c.first().copied().unwrap_or(self.ambient_c) + offset_c - self.ambient_c;
         let (mut x, mut s) = (x0, x0);
         let fan = self.fan_loss_1_s.unwrap_or(0.0);
         let near = self.near_bed_loss_1_s.unwrap_or(0.0);
@@ -282,8 +287,46 @@ impl ThermalData {
         &self.segments
     }
 
+    /// The model on every segment, each from its least-squares initial state:
+    /// the first sample is noisy, and a start off by δ leaves `δ·φ(t)` (the
+    /// free response, decaying with the plant's slowest time constant, hundreds
+    /// of seconds on a hotend) in the residual for a candidate effect to
+    /// mistake. δ enters (near) linearly, so it is projected out at every
+    /// simulation (variable projection, Golub & Pereyra 1973) instead of being
+    /// a model parameter.
     fn sim(&self, m: &ThermalModel) -> Vec<f64> {
-        self.segments.iter().flat_map(|e| m.simulate(e)).collect()
+        self.segments
+            .iter()
+            .flat_map(|e| {
+                let (y0, phi) = Self::free_response(m, e);
+                let pp: f64 = phi.iter().map(|f| f * f).sum();
+                let delta = if pp > 1e-12 { e.temperature_c.iter().zip(&y0).zip(&phi).map(|((y, s), f)| (y - s) * f).sum::<f64>() / pp } else { 0.0 };
+                y0.into_iter().zip(phi).map(move |(s, f)| s + delta * f)
+            })
+            .collect()
+    }
+
+    /// The simulation from the first sample and the free response `φ` to a
+    /// 1 °C higher start.
+    fn free_response(m: &ThermalModel, e: &Experiment) -> (Vec<f64>, Vec<f64>) {
+        let y0 = m.simulate_from(e, 0.0);
+        let phi = m.simulate_from(e, 1.0).iter().zip(&y0).map(|(a, b)| a - b).collect();
+        (y0, phi)
+    }
+
+    /// One column per segment: its free response (zero on the other segments).
+    fn initial_state_columns(&self, m: &ThermalModel) -> Vec<Vec<f64>> {
+        let total: usize = self.segments.iter().map(Experiment::len).sum();
+        let mut at = 0;
+        self.segments
+            .iter()
+            .map(|e| {
+                let mut col = vec![0.0; total];
+                col[at..at + e.len()].copy_from_slice(&Self::free_response(m, e).1);
+                at += e.len();
+                col
+            })
+            .collect()
     }
 
     fn dt(&self) -> f64 {
@@ -385,14 +428,16 @@ impl Domain for ThermalData {
     fn base_columns(&self, model: &ThermalModel) -> Vec<Vec<f64>> {
         let y0 = self.sim(model);
         let p0 = pack(model);
-        (0..p0.len())
+        let mut cols: Vec<Vec<f64>> = (0..p0.len())
             .map(|j| {
                 let h = if j == 2 { 1e-3 } else { 1e-4 };
                 let mut p = p0.clone();
                 p[j] += h;
                 self.sim(&unpack(model, &p)).iter().zip(&y0).map(|(a, b)| (a - b) / h).collect()
             })
-            .collect()
+            .collect();
+        cols.extend(self.initial_state_columns(model));
+        cols
     }
 
     fn candidates(&self, model: &ThermalModel) -> Vec<Candidate> {
