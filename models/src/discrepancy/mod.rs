@@ -178,6 +178,10 @@ fn delta_bic(r0: &[f64], r1: &[f64], k: usize) -> f64 {
 /// BIC difference above which one model is "very strongly" preferred (Kass & Raftery 1995, §3.2).
 pub const DECISIVE_BIC: f64 = 10.0;
 
+/// Share of the winner's error-reduction ratio above which a significant
+/// runner-up is refitted beside it (the refit, not the linearisation, decides).
+pub const RIVAL_ERR: f64 = 0.5;
+
 fn cross(domain_inputs: &[(String, Vec<f64>)], r: &[f64]) -> Vec<CrossCorrelation> {
     domain_inputs.iter().map(|(name, u)| stats::cross_correlation(name, r, u, 20)).collect()
 }
@@ -241,14 +245,28 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             ])
         };
         if let Some(best) = sel.chosen.first() {
-            match try_add(best) {
-                Some((m, r1, d)) => {
-                    let ev = evidence(best, &r1, d);
-                    effects.push(Effect { name: best.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &best.name) });
+            // ERR ranks effects linearised at a small probe; for effects nonlinear in
+            // their parameter (a lag and a dead time look alike there) the runner-ups
+            // within RIVAL_ERR of the winner that pass the same test are refitted too,
+            // and the nonlinear refit's BIC decides.
+            let bar = opts.alpha / sel.ranking.len().max(1) as f64;
+            let contenders: Vec<&Ranked> = std::iter::once(best)
+                .chain(sel.ranking.iter().filter(|r| r.name != best.name && r.err >= RIVAL_ERR * best.err && r.p_value < bar && r.delta_bic < 0.0))
+                .collect();
+            let mut fits: Vec<(&Ranked, D::Model, Vec<f64>, f64)> = contenders.iter().filter_map(|r| try_add(r).map(|(m, r1, d)| (*r, m, r1, d))).collect();
+            fits.sort_by(|a, b| a.3.total_cmp(&b.3));
+            let gap = fits.get(1).map(|b| b.3 - fits[0].3);
+            match fits.into_iter().next() {
+                Some((r, m, r1, d)) => {
+                    let mut ev = evidence(r, &r1, d);
+                    if let Some(gap) = gap {
+                        ev.insert("delta_bic_vs_rival".into(), gap);
+                    }
+                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name) });
                     current = m;
                     r_cur = r1;
                 }
-                None => excluded.push(best.name.clone()),
+                None => excluded.extend(contenders.iter().map(|r| r.name.clone())),
             }
         } else if let Some(group) = sel.ambiguous.first() {
             // Tell the group apart by the nonlinear refit of each member.

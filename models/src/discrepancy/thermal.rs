@@ -240,9 +240,28 @@ pub struct ThermalData {
     segments: Vec<Experiment>,
 }
 
-/// Free parameters of a model in fitting coordinates (logs of positive ones).
+/// The room temperatures a fitted ambient may take, °C: a printer's
+/// surroundings, not a hotend. Unbounded, an output-error fit of a
+/// closed-loop log can trade the heater for a 190 °C "ambient" the start
+/// decays towards (a PID log held at 210 °C did).
+const AMBIENT_RANGE_C: (f64, f64) = (-30.0, 60.0);
+
+/// Ambient in fitting coordinates: `mid + half·tanh((p − mid)/half)` maps
+/// every p into [`AMBIENT_RANGE_C`], with slope 1 at its middle.
+fn ambient_of(p: f64) -> f64 {
+    let (mid, half) = (0.5 * (AMBIENT_RANGE_C.0 + AMBIENT_RANGE_C.1), 0.5 * (AMBIENT_RANGE_C.1 - AMBIENT_RANGE_C.0));
+    mid + half * ((p - mid) / half).tanh()
+}
+
+fn ambient_to_p(t: f64) -> f64 {
+    let (mid, half) = (0.5 * (AMBIENT_RANGE_C.0 + AMBIENT_RANGE_C.1), 0.5 * (AMBIENT_RANGE_C.1 - AMBIENT_RANGE_C.0));
+    mid + half * ((t - mid) / half).clamp(-0.999_999, 0.999_999).atanh()
+}
+
+/// Free parameters of a model in fitting coordinates (logs of positive ones,
+/// the ambient squashed into its room range).
 fn pack(m: &ThermalModel) -> Vec<f64> {
-    let mut p = vec![m.heat_k_s.max(1e-12).ln(), m.loss_1_s.max(1e-12).ln(), m.ambient_c];
+    let mut p = vec![m.heat_k_s.max(1e-12).ln(), m.loss_1_s.max(1e-12).ln(), ambient_to_p(m.ambient_c)];
     p.extend(m.present().iter().map(|e| m.effect(e).unwrap_or(0.0).max(1e-12).ln()));
     p
 }
@@ -251,7 +270,7 @@ fn unpack(template: &ThermalModel, p: &[f64]) -> ThermalModel {
     let mut m = template.clone();
     m.heat_k_s = p[0].exp();
     m.loss_1_s = p[1].exp();
-    m.ambient_c = p[2];
+    m.ambient_c = ambient_of(p[2]);
     for (e, v) in template.present().iter().zip(&p[3..]) {
         m = m.with(e, Some(v.exp()));
     }
