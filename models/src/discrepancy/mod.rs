@@ -67,6 +67,11 @@ pub trait Domain {
     fn fit_base(&self) -> Result<Self::Model, ModelError>;
     /// Simulated output of `model` (same length as [`Domain::measured`]).
     fn simulate(&self, model: &Self::Model) -> Vec<f64>;
+    /// Parameters the refit of `effect` fits (its regressor `columns` unless it
+    /// frees more), the BIC's count.
+    fn fitted_parameters(&self, _effect: &str, columns: usize) -> usize {
+        columns
+    }
     /// Output sensitivities to the free parameters already in `model`.
     fn base_columns(&self, model: &Self::Model) -> Vec<Vec<f64>>;
     /// Named effects not yet in `model`, as regressor columns.
@@ -222,7 +227,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
         if ranking.is_none() {
             ranking = Some(sel.ranking.clone());
         }
-        let width = |name: &str| candidates.iter().find(|c| c.name == name).map_or(1, |c| c.columns.len());
+        let width = |name: &str| domain.fitted_parameters(name, candidates.iter().find(|c| c.name == name).map_or(1, |c| c.columns.len()));
         // Re-identify with one effect; keep it only if the nonlinear refit confirms it.
         let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> {
             let m = domain.augment(&current, r).ok()?;

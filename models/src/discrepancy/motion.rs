@@ -235,6 +235,13 @@ pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]
         p0.extend(e.get(&model.effects).iter().zip(&s).map(|(v, s)| v / s));
         scales.push(s);
     }
+    // The Stribeck velocity is re-identified with its level (log scale, last):
+    // a level at the wrong velocity is a Coulomb step, and loses to one.
+    let vs0 = model.effects.stribeck_v_m_s;
+    let free_vs = effects.contains(&MotionEffect::Stribeck);
+    if free_vs {
+        p0.push(0.0);
+    }
     let build = |p: &[f64]| -> MotionModel {
         let mut m = *model;
         m.params.j_m_kgm2 = j0 * p[0].exp();
@@ -243,6 +250,9 @@ pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]
             let v: Vec<f64> = s.iter().enumerate().map(|(i, s)| p[k + i] * s).collect();
             e.set(&mut m.effects, &v);
             k += s.len();
+        }
+        if free_vs {
+            m.effects.stribeck_v_m_s = vs0 * p[k].clamp(-5.0, 5.0).exp();
         }
         m
     };
@@ -347,6 +357,10 @@ impl Domain for MotionDomain {
         let mut effects = active_effects(model);
         effects.push(e);
         identify(&self.data, &seeded, &effects)
+    }
+    fn fitted_parameters(&self, effect: &str, columns: usize) -> usize {
+        // The Stribeck velocity is fitted beside the level (see `identify`).
+        columns + usize::from(effect == MotionEffect::Stribeck.name())
     }
     fn effect_parameters(&self, model: &MotionModel, effect: &str) -> BTreeMap<String, f64> {
         let Some(e) = MotionEffect::from_name(effect) else {

@@ -127,6 +127,9 @@ impl Friction {
     }
 }
 
+/// Sub-steps of an integration step near a Stribeck transition.
+const STRIBECK_SUBSTEPS: usize = 256;
+
 /// Coulomb state of a coordinate (as in `hbot::twin`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Mode {
@@ -257,7 +260,14 @@ impl AxisPlant {
             }
             let h = dt / n;
             for j in 0..n as usize {
-                self.step(&mut x, &mut v, &mut modes, &mut play, w[0] + j as f64 * h, h, cmd_m);
+                let t = w[0] + j as f64 * h;
+                // The Stribeck drop happens within ~v_s of zero speed, in tens of µs after a
+                // breakaway: such steps are split so that the step size no longer sets the
+                // outcome (the error is O(h) in the drop, not RK4's O(h⁴)).
+                let m = self.substeps(&x, &v, &modes, play, t, h, cmd_m);
+                for k in 0..m {
+                    self.step(&mut x, &mut v, &mut modes, &mut play, t + k as f64 * h / m as f64, h / m as f64, cmd_m);
+                }
             }
             out.push(x[1]);
         }
@@ -265,6 +275,34 @@ impl AxisPlant {
             return Err(ModelError::Numerical("the axis plant's state became non-finite".into()));
         }
         Ok(out)
+    }
+
+    /// Sub-steps for the step from `t` of length `h`: 1, unless a coordinate with a
+    /// Stribeck excess breaks away within the step (its force reaches the static
+    /// level at the step's end) or slides within 10·v_s of standstill; then enough
+    /// that its speed changes by at most v_s/4 per sub-step (capped at
+    /// [`STRIBECK_SUBSTEPS`]).
+    #[allow(clippy::too_many_arguments)]
+    fn substeps(&self, x: &[f64; 2], v: &[f64; 2], modes: &[Mode; 2], play: f64, t: f64, h: f64, cmd_m: &dyn Fn(f64) -> f64) -> usize {
+        let mut m = 1usize;
+        for i in 0..2 {
+            let f = &self.friction[i];
+            if f.stribeck <= 0.0 {
+                continue;
+            }
+            let fine = match modes[i] {
+                Mode::Slipping(_) => v[i].abs() < 10.0 * f.stribeck_v,
+                Mode::Stuck => self.forces(x, v, cmd_m(t + h), play)[i].abs() > 0.9 * f.static_level(),
+            };
+            if fine {
+                // Acceleration as if sliding (a stuck coordinate is about to), at least the
+                // Stribeck excess over the mass: what the drop releases.
+                let sliding = [Mode::Slipping(1.0), Mode::Slipping(1.0)];
+                let a = self.accel(x, v, cmd_m(t), play, &sliding)[i].abs().max(f.stribeck / self.mass[i]);
+                m = m.max(((a * h / (0.0625 * f.stribeck_v)).ceil() as usize).clamp(1, STRIBECK_SUBSTEPS));
+            }
+        }
+        m
     }
 
     /// Step for the default safety.
