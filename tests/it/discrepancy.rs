@@ -18,7 +18,7 @@ struct Verdict {
 
 #[test]
 fn hidden_effects_are_named_and_the_gap_shrinks() {
-    // 20 effect-free logs, 7 effects × 3 magnitudes × 2 noise levels × 2 seeds, 21 pairs × 2 seeds.
+    // 125 logs: 20 effect-free, 7 effects × 3 magnitudes × 2 noise levels × 2 seeds, 21 pairs.
     let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, ..Default::default() };
     let cases = hidden::generate(&Twin::default(), &opts).expect("hidden set");
     let verdicts: Vec<Verdict> = std::thread::scope(|s| {

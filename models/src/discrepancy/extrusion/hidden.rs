@@ -85,11 +85,11 @@ impl HiddenConfig {
     /// magnitudes × 2 noise levels × 4 replicates, 8 effect-free cases per noise
     /// level, the pair 4 times per noise level.
     pub fn full(seed: u64) -> Self {
-        Self { seed, sample_dt_s: 0.01, noise_sd_mm3_s: vec![0.02, 0.06], replicates: 4, zero_cases: 8, pair: true }
+        Self { seed, sample_dt_s: 0.01, noise_sd_mm3_s: vec![0.005, 0.02], replicates: 4, zero_cases: 8, pair: true }
     }
     /// The set the tests run.
     pub fn small(seed: u64) -> Self {
-        Self { replicates: 2, zero_cases: 6, ..Self::full(seed) }
+        Self { replicates: 3, zero_cases: 6, ..Self::full(seed) }
     }
 }
 
