@@ -105,10 +105,11 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         r.heading("Corners seen too late, and the line width downstream");
         let mut t = Table::new(
             "Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error with pressure compensation driven by the planner's buffer alone vs by the prediction",
-            ["H", "sharp corners", "too late: planner", "too late: with prediction", "width error: planner (%)", "width error: with prediction (%)"],
+            ["buffer (blocks)", "H", "sharp corners", "too late: planner", "too late: with prediction", "width error: planner (%)", "width error: with prediction (%)"],
         );
         for d in v.downstream {
             t.push([
+                d.blocks.to_string(),
                 d.horizon.to_string(),
                 d.sharp.to_string(),
                 d.late_planner.to_string(),
@@ -127,7 +128,8 @@ pub fn report(v: &TurnsView<'_>) -> Report {
                 "not lower"
             };
             r.paragraph(format!(
-                "At H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
+                "With a {}-block buffer at H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
+                d.blocks,
                 d.horizon,
                 d.late_planner,
                 d.sharp,

@@ -175,6 +175,11 @@ fn spec_kind_runs_and_latest_finds_its_model() {
     assert_eq!(names, ["train", "eval", "export", "report"]);
     let report = std::fs::read_to_string(sb.store().join("reports/turns-tiny/report.md")).expect("report");
     assert!(report.contains("previous-layer") && report.contains("too late"), "{report}");
+    // The line-width comparison at every default buffer (16, 4 and 2 blocks).
+    let eval = &rec["stages"][1]["metrics"];
+    for key in ["width_error_planner_h16", "width_error_predicted_h16_b4", "late_planner_h64_b2"] {
+        assert!(eval[key].is_number(), "{key}: {eval}");
+    }
     // `--model latest` is that run's model.
     let e = sb.json(&["turns", "eval", "test/held.gcode", "--horizon", "64"]);
     let train_out = rec["stages"][0]["outputs"].as_array().and_then(|o| o.iter().find(|x| x["name"] == "turn-model.json")).expect("model");

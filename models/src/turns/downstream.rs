@@ -15,7 +15,7 @@
 //! of a corner is the twin's `max |w/w_nom − 1|` over the event.
 
 use super::net::HorizonPrediction;
-use super::planner::{Knowledge, Planner};
+use super::planner::{Block, Knowledge, Planner};
 use super::{Junction, Move};
 use crate::extrusion::{Conditions, Extruder, Material};
 use serde::{Deserialize, Serialize};
@@ -49,6 +49,9 @@ impl Default for Extrusion {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 pub struct Downstream {
     pub horizon: usize,
+    /// Planner buffer, blocks.
+    #[serde(default)]
+    pub blocks: usize,
     /// Sharp junctions scored (those with an anchor `j − H` in the file).
     pub sharp: usize,
     pub late_planner: usize,
@@ -65,6 +68,7 @@ impl Downstream {
         let w = |f: &dyn Fn(&Downstream) -> f64| if sharp == 0 { 0.0 } else { parts.iter().map(|d| f(d) * d.sharp as f64).sum::<f64>() / sharp as f64 };
         Downstream {
             horizon: parts.first().map_or(0, |d| d.horizon),
+            blocks: parts.first().map_or(0, |d| d.blocks),
             sharp,
             late_planner: parts.iter().map(|d| d.late_planner).sum(),
             late_predicted: parts.iter().map(|d| d.late_predicted).sum(),
@@ -122,6 +126,25 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     worst
 }
 
+/// Speed at which the plan starts braking for the junction at the end of the
+/// last block: the braking run reaches back through every block that enters at
+/// its peak (no acceleration or cruise phase) and exits below it; its first
+/// block's peak is where braking began. (The last block's peak alone is only the
+/// end of the braking when the path is cut into short moves.)
+fn braking_start_speed(blocks: &[Block]) -> f64 {
+    let mut k = blocks.len() - 1;
+    while k > 0 {
+        let (prev, cur) = (&blocks[k - 1], &blocks[k]);
+        let cur_brakes_throughout = cur.peak_mm_s <= cur.entry_mm_s + 1e-9;
+        let prev_brakes_at_end = prev.exit_mm_s < prev.peak_mm_s - 1e-9;
+        if !(cur_brakes_throughout && prev_brakes_at_end) {
+            break;
+        }
+        k -= 1;
+    }
+    blocks[k].peak_mm_s
+}
+
 /// Late corners and width error of one file at one horizon, given the network's
 /// predictions at that horizon (anchor `i` flags junction `i + H`).
 pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &HorizonPrediction, ex: &Extrusion) -> Downstream {
@@ -134,7 +157,11 @@ pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &Hori
             called[i + h] = true;
         }
     }
-    let mut d = Downstream { horizon: h, ..Default::default() };
+    let blocks = match planner.params().lookahead {
+        super::planner::Lookahead::Blocks { n } => n,
+        _ => 0,
+    };
+    let mut d = Downstream { horizon: h, blocks, ..Default::default() };
     let (mut sum_p, mut sum_n) = (0.0, 0.0);
     for idx in h..j.len().min(know.len()) {
         if j[idx].turn_deg <= SHARP_DEG {
@@ -143,8 +170,8 @@ pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &Hori
         let kn = &know[idx];
         let m = &moves[idx];
         let a = if m.accel_mm_s2 > 0.0 { m.accel_mm_s2.min(planner.params().max_accel_mm_s2) } else { planner.params().max_accel_mm_s2 };
-        let v_n = ideal.blocks[idx].peak_mm_s.max(kn.corner_mm_s);
         let v_c = kn.corner_mm_s;
+        let v_n = braking_start_speed(&ideal.blocks[..=idx]).max(v_c);
         // Braking starts (full lookahead) `brake` before the junction's time.
         let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
         let t_dec = t_junction - (v_n - v_c) / a;
@@ -166,6 +193,64 @@ pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &Hori
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::turns::evaluate::reference_planner;
+
+    /// Squares of side 200 mm, each side cut into 40 moves of 5 mm.
+    fn squares(n: usize) -> Vec<Move> {
+        let corners = [(0.0, 0.0), (200.0, 0.0), (200.0, 200.0), (0.0, 200.0)];
+        let mut moves = vec![];
+        for _ in 0..n {
+            for c in 0..4 {
+                let (a, b) = (corners[c], corners[(c + 1) % 4]);
+                for k in 0..40 {
+                    let (t0, t1) = (k as f64 / 40.0, (k + 1) as f64 / 40.0);
+                    moves.push(Move {
+                        line: moves.len() + 1,
+                        x0: a.0 + (b.0 - a.0) * t0,
+                        y0: a.1 + (b.1 - a.1) * t0,
+                        x1: a.0 + (b.0 - a.0) * t1,
+                        y1: a.1 + (b.1 - a.1) * t1,
+                        z: 0.2,
+                        feed_mm_s: 500.0,
+                        accel_mm_s2: 0.0,
+                        extruding: true,
+                        layer: 0,
+                        feature: std::sync::Arc::from(""),
+                    });
+                }
+            }
+        }
+        moves
+    }
+
+    #[test]
+    fn a_called_corner_is_known_in_time_where_a_small_buffer_learns_of_it_late() {
+        // 200 mm sides at 500 mm/s and 1000 mm/s²: the full-lookahead plan peaks at
+        // √(a·200) ≈ 447 mm/s and brakes over ≈ 100 mm (20 moves) before each
+        // corner. A 2-block buffer sees a corner 10 mm ahead, 16 blocks 80 mm:
+        // both learn of it after braking should have started. Corners called
+        // 32 junctions (160 mm) ahead are known in time.
+        let moves = squares(3);
+        let j = crate::turns::junctions(&moves);
+        let h = 32;
+        let anchors: Vec<usize> = (0..j.len() - h).collect();
+        let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
+        let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
+        let ex = Extrusion::default();
+        let small = downstream(&moves, &j, &reference_planner(2).expect("planner"), &pred, &ex);
+        let marlin = downstream(&moves, &j, &reference_planner(16).expect("planner"), &pred, &ex);
+        for d in [&small, &marlin] {
+            assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
+        }
+        // Known 10 or 80 mm ahead of a corner braked for over ≈ 100 mm, the advance
+        // starts after the speed change; called 160 mm ahead it starts in time, and
+        // the defect is what the rate limit leaves, whatever the buffer.
+        for d in [&small, &marlin] {
+            assert!(d.width_error_predicted < 0.25 * d.width_error_planner, "{d:?}");
+        }
+        assert!((small.width_error_predicted - marlin.width_error_predicted).abs() < 1e-12, "{small:?} {marlin:?}");
+        assert!(marlin.width_error_planner < small.width_error_planner, "{marlin:?} {small:?}");
+    }
 
     #[test]
     fn known_in_time_the_advance_cancels_the_lag() {

@@ -5,7 +5,7 @@ use super::baselines::Knn;
 use super::downstream::{downstream, Downstream, Extrusion};
 use super::features::{corner_target, Task};
 use super::net::{HorizonPrediction, TurnModel};
-use super::planner::{Planner, PlannerParams};
+use super::planner::{Lookahead, Planner, PlannerParams};
 use super::{Junction, Move};
 use crate::ModelError;
 use serde::{Deserialize, Serialize};
@@ -121,22 +121,26 @@ pub struct Summary {
     pub downstream: Vec<Downstream>,
 }
 
-/// The firmware of the downstream comparison: Marlin's planner (16 blocks,
-/// junction deviation 0.013 mm, 1000 mm/s²) running every move at 500 mm/s, the
-/// issue's setting.
-pub fn reference_planner() -> Result<Planner, ModelError> {
-    PlannerParams { speed_mm_s: Some(500.0), ..PlannerParams::marlin() }.check()
+/// The firmware of the downstream comparison: Marlin's planner (junction
+/// deviation 0.013 mm, 1000 mm/s²) with a buffer of `blocks` (Marlin's 16 by
+/// default) running every move at 500 mm/s, the setting.
+pub fn reference_planner(blocks: usize) -> Result<Planner, ModelError> {
+    PlannerParams { speed_mm_s: Some(500.0), lookahead: Lookahead::Blocks { n: blocks }, ..PlannerParams::marlin() }.check()
 }
 
-/// Score every file (its moves) at every horizon of the model; returns the
-/// pooled summary and per-file results.
-pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<Junction>]) -> Result<(Summary, Vec<FileEval>), ModelError> {
-    let planner = reference_planner()?;
+/// Marlin's default planner buffer, blocks.
+pub const MARLIN_BLOCKS: usize = 16;
+
+/// Score every file (its moves) at every horizon of the model, the downstream
+/// comparison at every buffer size of `blocks`; returns the pooled summary and
+/// per-file results.
+pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<Junction>], blocks: &[usize]) -> Result<(Summary, Vec<FileEval>), ModelError> {
+    let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
     let knn = super::contenders::fit_knn(train, &model.task)?;
     let ex = Extrusion::default();
     let mut per_file = vec![];
     let mut pooled: Vec<(Truth, Vec<MethodPredictions>)> = vec![];
-    let mut pooled_down: Vec<Vec<Downstream>> = vec![vec![]; model.task.horizons.len()];
+    let mut pooled_down: Vec<Vec<Downstream>> = vec![vec![]; model.task.horizons.len() * planners.len()];
     let mut total = 0;
     for (name, moves) in files {
         let j = &super::junctions(moves);
@@ -145,9 +149,11 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
         for (slot, &h) in model.task.horizons.iter().enumerate() {
             let t = truth(j, &model.task, h);
             let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
-            let d = downstream(moves, j, &planner, &raw, &ex);
-            pooled_down[slot].push(d.clone());
-            fe.downstream.push(d);
+            for (b, planner) in planners.iter().enumerate() {
+                let d = downstream(moves, j, planner, &raw, &ex);
+                pooled_down[b * model.task.horizons.len() + slot].push(d.clone());
+                fe.downstream.push(d);
+            }
             fe.horizons.push(HorizonScores {
                 horizon: h,
                 rows: t.angle_deg.len(),

@@ -27,6 +27,23 @@ pub struct TurnSpec {
     pub model: ModelSection,
     #[serde(default)]
     pub export: ExportSection,
+    #[serde(default)]
+    pub downstream: DownstreamSection,
+}
+
+/// `[downstream]`: planner buffers (blocks) of the line-width comparison;
+/// default Marlin's 16 and the smaller buffers 4 and 2, where corners do come
+/// late on slicer output. 1–4 sizes within 1–64.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DownstreamSection {
+    pub blocks: Vec<usize>,
+}
+
+impl Default for DownstreamSection {
+    fn default() -> Self {
+        DownstreamSection { blocks: vec![evaluate::MARLIN_BLOCKS, 4, 2] }
+    }
 }
 
 /// `[data]`: G-code files or folders (their `*.gcode`), relative to the spec.
@@ -166,6 +183,8 @@ struct EvalStage {
     /// Training files (the kNN baseline's references) and held-out files.
     train: Vec<String>,
     files: Vec<String>,
+    /// Planner buffers of the downstream comparison.
+    blocks: Vec<usize>,
 }
 
 /// Parameters of the `export` stage.
@@ -192,6 +211,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: TurnSpec = spec.parse()?;
     let task = Task { horizons: s.task.horizons.clone(), corner_window_mm: s.task.corner_window_mm };
     check_task(&task).map_err(|e| spec.bad_value("task.horizons", e))?;
+    let b = &s.downstream.blocks;
+    if b.is_empty() || b.len() > 4 || b.iter().any(|&n| n == 0 || n > 64) || (1..b.len()).any(|i| b[..i].contains(&b[i])) {
+        return Err(spec.bad_value("downstream.blocks", format!("{b:?}: give 1–4 distinct buffer sizes within 1–64 blocks")));
+    }
     let m = &s.model;
     let settings = TrainParams {
         hidden: m.hidden.clone(),
@@ -238,7 +261,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let mut eval_files = train_files.clone();
     eval_files.extend(test_files.iter().cloned());
     stages.push(
-        Stage::typed("eval", 1, EvalStage { train: train_labels, files: test_labels }, move |input, p: &EvalStage| {
+        Stage::typed("eval", 1, EvalStage { train: train_labels, files: test_labels, blocks: s.downstream.blocks.clone() }, move |input, p: &EvalStage| {
             let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
             let mut train = vec![];
             for (path, name) in trf.iter().zip(&p.train) {
@@ -248,14 +271,16 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             for (path, name) in tf.iter().zip(&p.files) {
                 data.push((name.clone(), moves_of(&input.file(path)?, name)?));
             }
-            let (summary, files) = evaluate::evaluate(&data, &model, &train)?;
+            let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks)?;
             let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
             for d in &summary.downstream {
+                // Marlin's 16 blocks keep the plain names; other buffers say theirs.
+                let b = if d.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", d.blocks) };
                 out = out
-                    .metric(&format!("late_planner_h{}", d.horizon), d.late_planner as f64)
-                    .metric(&format!("late_predicted_h{}", d.horizon), d.late_predicted as f64)
-                    .metric(&format!("width_error_planner_h{}", d.horizon), d.width_error_planner)
-                    .metric(&format!("width_error_predicted_h{}", d.horizon), d.width_error_predicted);
+                    .metric(&format!("late_planner_h{}{b}", d.horizon), d.late_planner as f64)
+                    .metric(&format!("late_predicted_h{}{b}", d.horizon), d.late_predicted as f64)
+                    .metric(&format!("width_error_planner_h{}{b}", d.horizon), d.width_error_planner)
+                    .metric(&format!("width_error_predicted_h{}{b}", d.horizon), d.width_error_predicted);
             }
             for h in &summary.horizons {
                 for m in &h.methods {
