@@ -101,41 +101,73 @@ pub fn report(v: &TurnsView<'_>) -> Report {
             r.plot(p);
         }
     }
-    if !v.downstream.is_empty() {
+    let network: Vec<&Downstream> = v.downstream.iter().filter(|d| d.method == NETWORK).collect();
+    if !network.is_empty() {
         r.heading("Corners seen too late, and the line width downstream");
         let mut t = Table::new(
-            "Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error with pressure compensation driven by the planner's buffer alone vs by the prediction",
-            ["buffer (blocks)", "H", "sharp corners", "too late: planner", "too late: with prediction", "width error: planner (%)", "width error: with prediction (%)"],
+            "Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error (worst per sharp corner, averaged; false calls' spoilt width included) with pressure compensation driven by the planner's buffer alone vs by the network's calls",
+            ["buffer (blocks)", "H", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "width error: planner (%)", "width error: with prediction (%)"],
         );
-        for d in v.downstream {
+        for d in &network {
             t.push([
                 d.blocks.to_string(),
                 d.horizon.to_string(),
                 d.sharp.to_string(),
                 d.late_planner.to_string(),
                 d.late_predicted.to_string(),
+                d.false_calls.to_string(),
                 num(100.0 * d.width_error_planner, 3),
                 num(100.0 * d.width_error_predicted, 3),
             ]);
         }
         r.table(t);
-        for d in v.downstream {
+        for d in &network {
             let verdict = if d.width_error_predicted < d.width_error_planner {
                 "lower"
             } else if d.late_planner == 0 {
-                "the same: the buffer already knows every sharp corner before braking starts, so knowing it earlier changes nothing"
+                "not lower: the buffer already knows every sharp corner before braking starts, so knowing it earlier cannot help"
             } else {
                 "not lower"
             };
             r.paragraph(format!(
-                "With a {}-block buffer at H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
+                "With a {}-block buffer at H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do, at the cost of {} false calls. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
                 d.blocks,
                 d.horizon,
                 d.late_planner,
                 d.sharp,
                 d.late_predicted,
+                d.false_calls,
                 num(100.0 * d.width_error_planner, 3),
                 num(100.0 * d.width_error_predicted, 3),
+            ));
+        }
+        // Every method's calls driving the advance, at the first horizon.
+        let h0 = network[0].horizon;
+        let rows: Vec<&Downstream> = v.downstream.iter().filter(|d| d.horizon == h0).collect();
+        let mut t = Table::new(
+            format!("Line-width error (%) at H = {h0} with the advance driven by each method's corner calls (false calls' spoilt width included)"),
+            ["buffer (blocks)", "method", "too late", "false calls", "width error (%)"],
+        );
+        for d in &rows {
+            t.push([d.blocks.to_string(), d.method.clone(), d.late_predicted.to_string(), d.false_calls.to_string(), num(100.0 * d.width_error_predicted, 3)]);
+        }
+        r.table(t);
+        let mut buffers: Vec<usize> = rows.iter().map(|d| d.blocks).collect();
+        buffers.dedup();
+        for b in buffers {
+            let at: Vec<&&Downstream> = rows.iter().filter(|d| d.blocks == b).collect();
+            let Some(best) = at.iter().min_by(|x, y| x.width_error_predicted.total_cmp(&y.width_error_predicted)) else { continue };
+            if at.iter().all(|d| d.width_error_predicted == best.width_error_predicted) {
+                r.paragraph(format!("With a {b}-block buffer, every method gives {}%: no call changes the width.", num(100.0 * best.width_error_predicted, 3)));
+                continue;
+            }
+            let net = at.iter().find(|d| d.method == NETWORK);
+            let beats = net.is_some_and(|n| at.iter().all(|d| d.method == NETWORK || n.width_error_predicted < d.width_error_predicted));
+            r.paragraph(format!(
+                "With a {b}-block buffer, the lowest width error is {}'s ({}%); the network {} every baseline.",
+                best.method,
+                num(100.0 * best.width_error_predicted, 3),
+                if beats { "beats" } else { "does not beat" }
             ));
         }
     }

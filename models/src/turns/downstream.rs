@@ -48,6 +48,9 @@ impl Default for Extrusion {
 /// Corners seen too late and line-width error at one horizon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 pub struct Downstream {
+    /// Method whose corner calls drive the advance (`network` or a baseline).
+    #[serde(default)]
+    pub method: String,
     pub horizon: usize,
     /// Planner buffer, blocks.
     #[serde(default)]
@@ -59,6 +62,10 @@ pub struct Downstream {
     /// Mean over sharp corners of the twin's width defect `max |w/w_nom − 1|`.
     pub width_error_planner: f64,
     pub width_error_predicted: f64,
+    /// Junctions called sharp that are not (each costs the width its
+    /// anticipated braking spoils until the buffer shows no corner).
+    #[serde(default)]
+    pub false_calls: usize,
 }
 
 impl Downstream {
@@ -67,6 +74,8 @@ impl Downstream {
         let sharp: usize = parts.iter().map(|d| d.sharp).sum();
         let w = |f: &dyn Fn(&Downstream) -> f64| if sharp == 0 { 0.0 } else { parts.iter().map(|d| f(d) * d.sharp as f64).sum::<f64>() / sharp as f64 };
         Downstream {
+            method: parts.first().map_or(String::new(), |d| d.method.clone()),
+            false_calls: parts.iter().map(|d| d.false_calls).sum(),
             horizon: parts.first().map_or(0, |d| d.horizon),
             blocks: parts.first().map_or(0, |d| d.blocks),
             sharp,
@@ -78,6 +87,36 @@ impl Downstream {
     }
 }
 
+/// Ramps of K·v̇ at the extruder's limit `a_e`, each step `(τ, Δ)` |Δ|/A_e long
+/// and centred on its speed change, so the pressure error it leaves is
+/// antisymmetric and integrates to zero: what an advance that knows the event
+/// commands.
+fn centred_ramps(steps: &[(f64, f64)], a_e: f64, t: f64) -> f64 {
+    steps.iter().map(|&(tau, d)| d * ((t - tau) * a_e / d.abs() + 0.5).clamp(0.0, 1.0)).sum()
+}
+
+/// Worst `|u/v − 1|` from `t0` to `t1` of the pressure model `K·u̇ = v + p − u`
+/// with the head at `head(t) = v` and the advance `p` following `target(t)` at
+/// the extruder's limit, from a settled start at `head(t0)`.
+fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, ex: &Extrusion) -> f64 {
+    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm); // a_e: head-equivalent mm/s²
+    let dt = 2e-4;
+    let steps = ((t1 - t0) / dt).ceil() as usize;
+    let (mut p, mut u, mut worst) = (0.0f64, head(t0), 0.0f64);
+    for s in 0..steps {
+        let t = t0 + s as f64 * dt;
+        p += (target(t) - p).clamp(-a_e * dt, a_e * dt);
+        // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
+        let v_in = head(t + 0.5 * dt) + p;
+        u = v_in + (u - v_in) * (-dt / k).exp();
+        let v = head(t + dt);
+        if v > 1e-9 {
+            worst = worst.max((u / v - 1.0).abs());
+        }
+    }
+    worst
+}
+
 /// Width defect of one braking event: cruise at `v_n`, brake at `a` to `v_c`
 /// from t = 0, accelerate back; the advance ramps cannot start before `t_know_s`
 /// (relative to the start of braking, may be negative).
@@ -85,45 +124,37 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     if !(v_n > v_c && a > 0.0 && v_n > 0.0) {
         return 0.0;
     }
-    let k = ex.k_s;
-    let a_e = ex.e_accel_mm_s2 / ex.e_per_mm; // head-equivalent mm/s²
+    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
     let t_b = (v_n - v_c) / a;
-    let head = |t: f64| -> (f64, f64) {
-        if t < 0.0 {
-            (v_n, 0.0)
+    let head = |t: f64| -> f64 {
+        if t < 0.0 || t >= 2.0 * t_b {
+            v_n
         } else if t < t_b {
-            (v_n - a * t, -a)
-        } else if t < 2.0 * t_b {
-            (v_c + a * (t - t_b), a)
+            v_n - a * t
         } else {
-            (v_n, 0.0)
+            v_c + a * (t - t_b)
         }
     };
-    // The advance a firmware that knows the whole event would command: each step
-    // Δ of K·v̇ (−Ka at braking, +2Ka at the corner, −Ka when cruise resumes) as a
-    // ramp at the extruder's limit, |Δ|/A_e long, centred on its speed change, so
-    // the pressure error it leaves is antisymmetric and integrates to zero.
+    // −Ka at braking, +2Ka at the corner, −Ka when cruise resumes.
     let steps = [(0.0, -k * a), (t_b, 2.0 * k * a), (2.0 * t_b, -k * a)];
-    let ideal = |t: f64| -> f64 { steps.iter().map(|&(tau, d)| d * ((t - tau) * a_e / d.abs() + 0.5).clamp(0.0, 1.0)).sum() };
-    let dt = 2e-4;
+    // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
+    let target = |t: f64| if t >= t_know_s { centred_ramps(&steps, a_e, t) } else { 0.0 };
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
-    let (t0, t1) = (-0.05 - 0.5 * k * a / a_e, 2.0 * t_b + 3.0 * k);
-    let steps = ((t1 - t0) / dt).ceil() as usize;
-    let (mut p, mut u, mut worst) = (0.0f64, v_n, 0.0f64);
-    for s in 0..steps {
-        let t = t0 + s as f64 * dt;
-        // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
-        let target = if t >= t_know_s { ideal(t) } else { 0.0 };
-        p += (target - p).clamp(-a_e * dt, a_e * dt);
-        // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
-        let v_in = head(t + 0.5 * dt).0 + p;
-        u = v_in + (u - v_in) * (-dt / k).exp();
-        let v = head(t + dt).0;
-        if v > 1e-9 {
-            worst = worst.max((u / v - 1.0).abs());
-        }
+    pressure_defect(&head, &target, -0.05 - 0.5 * k * a / a_e, 2.0 * t_b + 3.0 * k, ex)
+}
+
+/// Width defect of a false call: the head cruises at `v` through a junction
+/// called a sharp corner that is not one. Trusting the call, the advance
+/// prepares the braking a sharp corner would need (−Ka from t = 0, the braking
+/// start for a stop at the junction) until the junction enters the buffer at
+/// `t_cancel_s` (relative) and shows no corner; then it returns to 0.
+pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64 {
+    if !(v > 0.0 && a > 0.0) {
+        return 0.0;
     }
-    worst
+    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
+    let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
+    pressure_defect(&|_| v, &target, -0.05 - 0.5 * k * a / a_e, t_cancel_s.max(0.0) + 3.0 * k, ex)
 }
 
 /// Speed at which the plan starts braking for the junction at the end of the
@@ -145,9 +176,13 @@ fn braking_start_speed(blocks: &[Block]) -> f64 {
     blocks[k].peak_mm_s
 }
 
-/// Late corners and width error of one file at one horizon, given the network's
-/// predictions at that horizon (anchor `i` flags junction `i + H`).
-pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &HorizonPrediction, ex: &Extrusion) -> Downstream {
+/// Late corners and width error of one file at one horizon, given a method's
+/// predictions at that horizon (anchor `i` calls a corner within `window_mm`
+/// of path from junction `i + H`; a sharp junction counts as called when the
+/// window starting at it was). The width
+/// error with prediction is the total defect per sharp corner: the sharp
+/// corners' own plus what the false calls spoil.
+pub fn downstream(method: &str, moves: &[Move], j: &[Junction], planner: &Planner, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
     let h = pred.horizon;
     let know: Vec<Knowledge> = planner.knowledge(moves);
     let (_, ideal) = planner.plan(moves);
@@ -161,19 +196,27 @@ pub fn downstream(moves: &[Move], j: &[Junction], planner: &Planner, pred: &Hori
         super::planner::Lookahead::Blocks { n } => n,
         _ => 0,
     };
-    let mut d = Downstream { horizon: h, blocks, ..Default::default() };
+    let mut d = Downstream { method: method.to_string(), horizon: h, blocks, ..Default::default() };
     let (mut sum_p, mut sum_n) = (0.0, 0.0);
     for idx in h..j.len().min(know.len()) {
-        if j[idx].turn_deg <= SHARP_DEG {
-            continue;
-        }
         let kn = &know[idx];
         let m = &moves[idx];
         let a = if m.accel_mm_s2 > 0.0 { m.accel_mm_s2.min(planner.params().max_accel_mm_s2) } else { planner.params().max_accel_mm_s2 };
+        let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
+        if j[idx].turn_deg <= SHARP_DEG {
+            // A call says a corner lies within `window_mm` from this junction; it is
+            // false when none does. Braking for a stop here would start v/a before it.
+            if called[idx] && !super::features::corner_target(j, idx, window_mm) {
+                let v = ideal.blocks[idx].exit_mm_s;
+                let t_cancel = ideal.blocks[kn.known_from_move].t_start_s;
+                d.false_calls += 1;
+                sum_p += false_call_defect(v, a, t_cancel - (t_junction - v / a), ex);
+            }
+            continue;
+        }
         let v_c = kn.corner_mm_s;
         let v_n = braking_start_speed(&ideal.blocks[..=idx]).max(v_c);
         // Braking starts (full lookahead) `brake` before the junction's time.
-        let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
         let t_dec = t_junction - (v_n - v_c) / a;
         let t_known_planner = ideal.blocks[kn.known_from_move].t_start_s;
         let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(t_known_planner) } else { t_known_planner };
@@ -237,8 +280,8 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let small = downstream(&moves, &j, &reference_planner(2).expect("planner"), &pred, &ex);
-        let marlin = downstream(&moves, &j, &reference_planner(16).expect("planner"), &pred, &ex);
+        let small = downstream("calls", &moves, &j, &reference_planner(2).expect("planner"), &pred, 0.0, &ex);
+        let marlin = downstream("calls", &moves, &j, &reference_planner(16).expect("planner"), &pred, 0.0, &ex);
         for d in [&small, &marlin] {
             assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
         }

@@ -140,7 +140,8 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
     let ex = Extrusion::default();
     let mut per_file = vec![];
     let mut pooled: Vec<(Truth, Vec<MethodPredictions>)> = vec![];
-    let mut pooled_down: Vec<Vec<Downstream>> = vec![vec![]; model.task.horizons.len() * planners.len()];
+    // By (buffer, horizon, method), in that order.
+    let mut pooled_down: std::collections::BTreeMap<(usize, usize, usize), Vec<Downstream>> = Default::default();
     let mut total = 0;
     for (name, moves) in files {
         let j = &super::junctions(moves);
@@ -149,10 +150,24 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
         for (slot, &h) in model.task.horizons.iter().enumerate() {
             let t = truth(j, &model.task, h);
             let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
+            // Every method's corner calls drive the advance in turn (on the network's anchors).
+            let calls: Vec<(usize, HorizonPrediction)> = preds
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| p.corner_score.len() == raw.anchors.len())
+                .map(|(mi, p)| {
+                    (
+                        mi,
+                        HorizonPrediction { corner_probability: p.corner_score.clone(), threshold: p.threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() },
+                    )
+                })
+                .collect();
             for (b, planner) in planners.iter().enumerate() {
-                let d = downstream(moves, j, planner, &raw, &ex);
-                pooled_down[b * model.task.horizons.len() + slot].push(d.clone());
-                fe.downstream.push(d);
+                for (mi, call) in &calls {
+                    let d = downstream(&preds[*mi].method, moves, j, planner, call, model.task.corner_window_mm, &ex);
+                    pooled_down.entry((b, slot, *mi)).or_default().push(d.clone());
+                    fe.downstream.push(d);
+                }
             }
             fe.horizons.push(HorizonScores {
                 horizon: h,
@@ -184,7 +199,7 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
             methods: preds.iter().map(|p| score(&p.method, t, &p.angle_deg, &p.corner_score, p.threshold)).collect(),
         })
         .collect();
-    let downstream = pooled_down.iter().map(|d| Downstream::pool(d)).collect();
+    let downstream = pooled_down.values().map(|d| Downstream::pool(d)).collect();
     Ok((Summary { files: files.len(), junctions: total, horizons, downstream }, per_file))
 }
 

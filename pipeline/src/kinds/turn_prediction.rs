@@ -273,7 +273,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             }
             let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks)?;
             let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
-            for d in &summary.downstream {
+            for d in summary.downstream.iter().filter(|d| d.method == evaluate::NETWORK) {
                 // Marlin's 16 blocks keep the plain names; other buffers say theirs.
                 let b = if d.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", d.blocks) };
                 out = out
