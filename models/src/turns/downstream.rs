@@ -117,6 +117,12 @@ fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f
     worst
 }
 
+/// Half the first ramp (K·a at the extruder's limit): how long before braking
+/// the defect window of [`corner_defect`] opens, beyond its 50 ms margin.
+fn ramp_lead(a: f64, ex: &Extrusion) -> f64 {
+    0.5 * ex.k_s * a / (ex.e_accel_mm_s2 / ex.e_per_mm)
+}
+
 /// Width defect of one braking event: cruise at `v_n`, brake at `a` to `v_c`
 /// from t = 0, accelerate back; the advance ramps cannot start before `t_know_s`
 /// (relative to the start of braking, may be negative).
@@ -140,7 +146,7 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
     let target = |t: f64| if t >= t_know_s { centred_ramps(&steps, a_e, t) } else { 0.0 };
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
-    pressure_defect(&head, &target, -0.05 - 0.5 * k * a / a_e, 2.0 * t_b + 3.0 * k, ex)
+    pressure_defect(&head, &target, -0.05 - ramp_lead(a, ex), 2.0 * t_b + 3.0 * k, ex)
 }
 
 /// Width defect of a false call: the head cruises at `v` through a junction
@@ -152,9 +158,57 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
     if !(v > 0.0 && a > 0.0) {
         return 0.0;
     }
+    if t_cancel_s <= -ramp_lead(a, ex) {
+        return 0.0; // cancelled before the anticipating ramp would start
+    }
     let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
     let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
-    pressure_defect(&|_| v, &target, -0.05 - 0.5 * k * a / a_e, t_cancel_s.max(0.0) + 3.0 * k, ex)
+    pressure_defect(&|_| v, &target, -0.05 - ramp_lead(a, ex), t_cancel_s.max(0.0) + 3.0 * k, ex)
+}
+
+/// What one planner knows of one file, and its full-lookahead plan: shared by
+/// every method and horizon scored on that file.
+pub struct Firmware {
+    pub planner: Planner,
+    pub know: Vec<Knowledge>,
+    pub ideal: super::planner::Profile,
+    /// Per junction: its acceleration, and for a sharp one its braking event
+    /// `(v_n, v_c, t_dec)` with the defects known by the buffer alone and known
+    /// before any ramp (computed once, shared by every method and horizon).
+    events: Vec<Event>,
+}
+
+/// One junction's braking event and its two reference defects.
+struct Event {
+    a: f64,
+    t_junction: f64,
+    corner: Option<(f64, f64, f64, f64, f64)>,
+}
+
+impl Firmware {
+    /// Plan `moves` (junctions `j`) with `planner`.
+    pub fn new(planner: &Planner, moves: &[Move], j: &[Junction], ex: &Extrusion) -> Firmware {
+        let (_, ideal) = planner.plan(moves);
+        let know = planner.knowledge(moves);
+        let max_a = planner.params().max_accel_mm_s2;
+        let events = (0..j.len().min(know.len()))
+            .map(|idx| {
+                let m = &moves[idx];
+                let a = if m.accel_mm_s2 > 0.0 { m.accel_mm_s2.min(max_a) } else { max_a };
+                let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
+                let corner = (j[idx].turn_deg > SHARP_DEG).then(|| {
+                    let v_c = know[idx].corner_mm_s;
+                    let v_n = braking_start_speed(&ideal.blocks[..=idx]).max(v_c);
+                    // Braking starts (full lookahead) this long before the junction's time.
+                    let t_dec = t_junction - (v_n - v_c) / a;
+                    let t_known = ideal.blocks[know[idx].known_from_move].t_start_s;
+                    (v_n, v_c, t_dec, corner_defect(v_n, v_c, a, t_known - t_dec, ex), corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex))
+                });
+                Event { a, t_junction, corner }
+            })
+            .collect();
+        Firmware { planner: *planner, know, ideal, events }
+    }
 }
 
 /// Speed at which the plan starts braking for the junction at the end of the
@@ -182,10 +236,9 @@ fn braking_start_speed(blocks: &[Block]) -> f64 {
 /// window starting at it was). The width
 /// error with prediction is the total defect per sharp corner: the sharp
 /// corners' own plus what the false calls spoil.
-pub fn downstream(method: &str, moves: &[Move], j: &[Junction], planner: &Planner, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
+pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
     let h = pred.horizon;
-    let know: Vec<Knowledge> = planner.knowledge(moves);
-    let (_, ideal) = planner.plan(moves);
+    let (planner, know, ideal) = (&firmware.planner, &firmware.know, &firmware.ideal);
     let mut called = vec![false; j.len()];
     for (k, &i) in pred.anchors.iter().enumerate() {
         if pred.corner_probability[k] >= pred.threshold && i + h < called.len() {
@@ -198,33 +251,32 @@ pub fn downstream(method: &str, moves: &[Move], j: &[Junction], planner: &Planne
     };
     let mut d = Downstream { method: method.to_string(), horizon: h, blocks, ..Default::default() };
     let (mut sum_p, mut sum_n) = (0.0, 0.0);
-    for idx in h..j.len().min(know.len()) {
-        let kn = &know[idx];
-        let m = &moves[idx];
-        let a = if m.accel_mm_s2 > 0.0 { m.accel_mm_s2.min(planner.params().max_accel_mm_s2) } else { planner.params().max_accel_mm_s2 };
-        let t_junction = ideal.blocks[idx].t_start_s + ideal.blocks[idx].duration_s;
-        if j[idx].turn_deg <= SHARP_DEG {
+    for idx in h..firmware.events.len() {
+        let (kn, ev) = (&know[idx], &firmware.events[idx]);
+        let Some((v_n, v_c, t_dec, planner_defect, early_defect)) = ev.corner else {
             // A call says a corner lies within `window_mm` from this junction; it is
             // false when none does. Braking for a stop here would start v/a before it.
             if called[idx] && !super::features::corner_target(j, idx, window_mm) {
                 let v = ideal.blocks[idx].exit_mm_s;
                 let t_cancel = ideal.blocks[kn.known_from_move].t_start_s;
                 d.false_calls += 1;
-                sum_p += false_call_defect(v, a, t_cancel - (t_junction - v / a), ex);
+                sum_p += false_call_defect(v, ev.a, t_cancel - (ev.t_junction - v / ev.a), ex);
             }
             continue;
-        }
-        let v_c = kn.corner_mm_s;
-        let v_n = braking_start_speed(&ideal.blocks[..=idx]).max(v_c);
-        // Braking starts (full lookahead) `brake` before the junction's time.
-        let t_dec = t_junction - (v_n - v_c) / a;
+        };
         let t_known_planner = ideal.blocks[kn.known_from_move].t_start_s;
         let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(t_known_planner) } else { t_known_planner };
         d.sharp += 1;
         d.late_planner += usize::from(kn.too_late);
         d.late_predicted += usize::from(kn.too_late && t_known_pred >= t_dec);
-        sum_n += corner_defect(v_n, v_c, a, t_known_planner - t_dec, ex);
-        sum_p += corner_defect(v_n, v_c, a, t_known_pred - t_dec, ex);
+        sum_n += planner_defect;
+        sum_p += if t_known_pred >= t_known_planner {
+            planner_defect
+        } else if t_known_pred - t_dec <= -(0.05 + ramp_lead(ev.a, ex)) {
+            early_defect
+        } else {
+            corner_defect(v_n, v_c, ev.a, t_known_pred - t_dec, ex)
+        };
     }
     if d.sharp > 0 {
         d.width_error_planner = sum_n / d.sharp as f64;
@@ -280,8 +332,8 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let small = downstream("calls", &moves, &j, &reference_planner(2).expect("planner"), &pred, 0.0, &ex);
-        let marlin = downstream("calls", &moves, &j, &reference_planner(16).expect("planner"), &pred, 0.0, &ex);
+        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
+        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
         for d in [&small, &marlin] {
             assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
         }

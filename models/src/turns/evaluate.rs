@@ -2,7 +2,7 @@
 //! corner ROC AUC, for the network and every baseline on the same anchors.
 
 use super::baselines::Knn;
-use super::downstream::{downstream, Downstream, Extrusion};
+use super::downstream::{downstream, Downstream, Extrusion, Firmware};
 use super::features::{corner_target, Task};
 use super::net::{HorizonPrediction, TurnModel};
 use super::planner::{Lookahead, Planner, PlannerParams};
@@ -146,6 +146,7 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
     for (name, moves) in files {
         let j = &super::junctions(moves);
         total += j.len();
+        let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
         let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
         for (slot, &h) in model.task.horizons.iter().enumerate() {
             let t = truth(j, &model.task, h);
@@ -162,9 +163,9 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
                     )
                 })
                 .collect();
-            for (b, planner) in planners.iter().enumerate() {
+            for (b, fw) in firmware.iter().enumerate() {
                 for (mi, call) in &calls {
-                    let d = downstream(&preds[*mi].method, moves, j, planner, call, model.task.corner_window_mm, &ex);
+                    let d = downstream(&preds[*mi].method, j, fw, call, model.task.corner_window_mm, &ex);
                     pooled_down.entry((b, slot, *mi)).or_default().push(d.clone());
                     fe.downstream.push(d);
                 }
