@@ -240,22 +240,22 @@ pub struct ThermalData {
     segments: Vec<Experiment>,
 }
 
-/// The room temperatures a fitted ambient may take, °C: a printer's
+/// The room temperatures a fitted ambient may take: a printer's
 /// surroundings, not a hotend. Unbounded, an output-error fit of a
 /// closed-loop log can trade the heater for a 190 °C "ambient" the start
-/// decays towards (a PID log held at 210 °C did).
-const AMBIENT_RANGE_C: (f64, f64) = (-30.0, 60.0);
+/// decays towards (a PID log held at 210 °C did). Middle and half-width of
+/// the range −30..60 °C.
+const AMBIENT_MID_C: f64 = 15.0;
+const AMBIENT_HALF_C: f64 = 45.0;
 
 /// Ambient in fitting coordinates: `mid + half·tanh((p − mid)/half)` maps
-/// every p into [`AMBIENT_RANGE_C`], with slope 1 at its middle.
+/// every p into the room range, with slope 1 at its middle.
 fn ambient_of(p: f64) -> f64 {
-    let (mid, half) = (0.5 * (AMBIENT_RANGE_C.0 + AMBIENT_RANGE_C.1), 0.5 * (AMBIENT_RANGE_C.1 - AMBIENT_RANGE_C.0));
-    mid + half * ((p - mid) / half).tanh()
+    AMBIENT_MID_C + AMBIENT_HALF_C * ((p - AMBIENT_MID_C) / AMBIENT_HALF_C).tanh()
 }
 
 fn ambient_to_p(t: f64) -> f64 {
-    let (mid, half) = (0.5 * (AMBIENT_RANGE_C.0 + AMBIENT_RANGE_C.1), 0.5 * (AMBIENT_RANGE_C.1 - AMBIENT_RANGE_C.0));
-    mid + half * ((t - mid) / half).clamp(-0.999_999, 0.999_999).atanh()
+    AMBIENT_MID_C + AMBIENT_HALF_C * ((t - AMBIENT_MID_C) / AMBIENT_HALF_C).clamp(-0.999_999, 0.999_999).atanh()
 }
 
 /// Free parameters of a model in fitting coordinates (logs of positive ones,

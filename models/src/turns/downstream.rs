@@ -117,10 +117,16 @@ fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f
     worst
 }
 
-/// Half the first ramp (K·a at the extruder's limit): how long before braking
-/// the defect window of [`corner_defect`] opens, beyond its 50 ms margin.
+/// Half the first ramp (K·a at the extruder's limit): how long before the
+/// braking starts its centred ramp does.
 fn ramp_lead(a: f64, ex: &Extrusion) -> f64 {
     0.5 * ex.k_s * a / (ex.e_accel_mm_s2 / ex.e_per_mm)
+}
+
+/// Where a defect window opens, relative to the braking start: 50 ms before the
+/// first ramp. Knowledge from before it is knowledge in time.
+fn window_start(a: f64, ex: &Extrusion) -> f64 {
+    -0.05 - ramp_lead(a, ex)
 }
 
 /// Width defect of one braking event: cruise at `v_n`, brake at `a` to `v_c`
@@ -146,7 +152,7 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
     let target = |t: f64| if t >= t_know_s { centred_ramps(&steps, a_e, t) } else { 0.0 };
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
-    pressure_defect(&head, &target, -0.05 - ramp_lead(a, ex), 2.0 * t_b + 3.0 * k, ex)
+    pressure_defect(&head, &target, window_start(a, ex), 2.0 * t_b + 3.0 * k, ex)
 }
 
 /// Width defect of a false call: the head cruises at `v` through a junction
@@ -163,26 +169,37 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
     }
     let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
     let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
-    pressure_defect(&|_| v, &target, -0.05 - ramp_lead(a, ex), t_cancel_s.max(0.0) + 3.0 * k, ex)
+    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, ex)
 }
 
 /// What one planner knows of one file, and its full-lookahead plan: shared by
 /// every method and horizon scored on that file.
 pub struct Firmware {
-    pub planner: Planner,
-    pub know: Vec<Knowledge>,
-    pub ideal: super::planner::Profile,
-    /// Per junction: its acceleration, and for a sharp one its braking event
-    /// `(v_n, v_c, t_dec)` with the defects known by the buffer alone and known
-    /// before any ramp (computed once, shared by every method and horizon).
+    /// Planner buffer, blocks (0 for a time lookahead).
+    blocks: usize,
+    know: Vec<Knowledge>,
+    ideal: super::planner::Profile,
+    /// Per junction (computed once, shared by every method and horizon).
     events: Vec<Event>,
 }
 
-/// One junction's braking event and its two reference defects.
+/// One junction: its acceleration and time, and its braking event if sharp.
 struct Event {
     a: f64,
     t_junction: f64,
-    corner: Option<(f64, f64, f64, f64, f64)>,
+    corner: Option<Corner>,
+}
+
+/// The braking event of a sharp junction and its two reference defects.
+struct Corner {
+    v_n: f64,
+    v_c: f64,
+    /// When braking starts, and when the buffer alone learns of the corner, s.
+    t_dec: f64,
+    t_known: f64,
+    /// Defect known by the buffer alone, and known before any ramp.
+    defect_buffer: f64,
+    defect_early: f64,
 }
 
 impl Firmware {
@@ -202,12 +219,17 @@ impl Firmware {
                     // Braking starts (full lookahead) this long before the junction's time.
                     let t_dec = t_junction - (v_n - v_c) / a;
                     let t_known = ideal.blocks[know[idx].known_from_move].t_start_s;
-                    (v_n, v_c, t_dec, corner_defect(v_n, v_c, a, t_known - t_dec, ex), corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex))
+                    let defect_buffer = corner_defect(v_n, v_c, a, t_known - t_dec, ex);
+                    Corner { v_n, v_c, t_dec, t_known, defect_buffer, defect_early: corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex) }
                 });
                 Event { a, t_junction, corner }
             })
             .collect();
-        Firmware { planner: *planner, know, ideal, events }
+        let blocks = match planner.params().lookahead {
+            super::planner::Lookahead::Blocks { n } => n,
+            _ => 0,
+        };
+        Firmware { blocks, know, ideal, events }
     }
 }
 
@@ -238,22 +260,18 @@ fn braking_start_speed(blocks: &[Block]) -> f64 {
 /// corners' own plus what the false calls spoil.
 pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
     let h = pred.horizon;
-    let (planner, know, ideal) = (&firmware.planner, &firmware.know, &firmware.ideal);
+    let (know, ideal) = (&firmware.know, &firmware.ideal);
     let mut called = vec![false; j.len()];
     for (k, &i) in pred.anchors.iter().enumerate() {
         if pred.corner_probability[k] >= pred.threshold && i + h < called.len() {
             called[i + h] = true;
         }
     }
-    let blocks = match planner.params().lookahead {
-        super::planner::Lookahead::Blocks { n } => n,
-        _ => 0,
-    };
-    let mut d = Downstream { method: method.to_string(), horizon: h, blocks, ..Default::default() };
+    let mut d = Downstream { method: method.to_string(), horizon: h, blocks: firmware.blocks, ..Default::default() };
     let (mut sum_p, mut sum_n) = (0.0, 0.0);
     for idx in h..firmware.events.len() {
         let (kn, ev) = (&know[idx], &firmware.events[idx]);
-        let Some((v_n, v_c, t_dec, planner_defect, early_defect)) = ev.corner else {
+        let Some(c) = &ev.corner else {
             // A call says a corner lies within `window_mm` from this junction; it is
             // false when none does. Braking for a stop here would start v/a before it.
             if called[idx] && !super::features::corner_target(j, idx, window_mm) {
@@ -264,18 +282,17 @@ pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &Hori
             }
             continue;
         };
-        let t_known_planner = ideal.blocks[kn.known_from_move].t_start_s;
-        let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(t_known_planner) } else { t_known_planner };
+        let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(c.t_known) } else { c.t_known };
         d.sharp += 1;
         d.late_planner += usize::from(kn.too_late);
-        d.late_predicted += usize::from(kn.too_late && t_known_pred >= t_dec);
-        sum_n += planner_defect;
-        sum_p += if t_known_pred >= t_known_planner {
-            planner_defect
-        } else if t_known_pred - t_dec <= -(0.05 + ramp_lead(ev.a, ex)) {
-            early_defect
+        d.late_predicted += usize::from(kn.too_late && t_known_pred >= c.t_dec);
+        sum_n += c.defect_buffer;
+        sum_p += if t_known_pred >= c.t_known {
+            c.defect_buffer
+        } else if t_known_pred - c.t_dec <= window_start(ev.a, ex) {
+            c.defect_early
         } else {
-            corner_defect(v_n, v_c, ev.a, t_known_pred - t_dec, ex)
+            corner_defect(c.v_n, c.v_c, ev.a, t_known_pred - c.t_dec, ex)
         };
     }
     if d.sharp > 0 {
