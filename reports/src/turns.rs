@@ -105,13 +105,16 @@ pub fn report(v: &TurnsView<'_>) -> Report {
     if !network.is_empty() {
         r.heading("Corners seen too late, and the line width downstream");
         let mut t = Table::new(
-            "Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error (worst per sharp corner, averaged; false calls' spoilt width included) with pressure compensation driven by the planner's buffer alone vs by the network's calls",
-            ["buffer (blocks)", "H", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "width error: planner (%)", "width error: with prediction (%)"],
+            format!("Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error (worst per sharp corner, capped at {:.0} %, averaged; false calls' spoilt width included) with pressure compensation driven by the planner's buffer alone vs by the network's calls", 100.0 * fdmlab_models::turns::downstream::DEFECT_CAP),
+            ["buffer (blocks)", "H", "call threshold", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "width error: planner (%)", "width error: with prediction (%)"],
         );
+        let threshold = |d: &Downstream| v.model.call_threshold(d.blocks, d.horizon).unwrap_or(f64::NAN);
+        let shown = |t: f64| if t > 1.0 { "never".to_string() } else { num(t, 3) };
         for d in &network {
             t.push([
                 d.blocks.to_string(),
                 d.horizon.to_string(),
+                shown(threshold(d)),
                 d.sharp.to_string(),
                 d.late_planner.to_string(),
                 d.late_predicted.to_string(),
@@ -121,6 +124,9 @@ pub fn report(v: &TurnsView<'_>) -> Report {
             ]);
         }
         r.table(t);
+        r.paragraph(
+            "The advance acts on the network's corner call when its probability reaches the call threshold of its buffer and horizon: the one with the lowest width error on the training files (a call rescues a late corner but a false one spoils width; \"never\" where no call paid there). The F1 of the metrics table uses the F1-optimal threshold instead.",
+        );
         for d in &network {
             let verdict = if d.width_error_predicted < d.width_error_planner {
                 "lower"
@@ -130,9 +136,13 @@ pub fn report(v: &TurnsView<'_>) -> Report {
                 "not lower"
             };
             r.paragraph(format!(
-                "With a {}-block buffer at H = {}: {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do, at the cost of {} false calls. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
+                "With a {}-block buffer at H = {} ({}): {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do, at the cost of {} false calls. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
                 d.blocks,
                 d.horizon,
+                match threshold(d) {
+                    t if t > 1.0 => "the network never calls".to_string(),
+                    t => format!("call threshold {}", num(t, 3)),
+                },
                 d.late_planner,
                 d.sharp,
                 d.late_predicted,

@@ -7,7 +7,7 @@ use fdmlab_models::turns::evaluate;
 use fdmlab_models::turns::features::Task;
 use fdmlab_models::turns::net::{self, TurnModel};
 use fdmlab_models::turns::{Junction, Move};
-use fdmlab_pipeline::kinds::turn_prediction::{check_task, gcode_files, read_moves};
+use fdmlab_pipeline::kinds::turn_prediction::{check_blocks, check_task, gcode_files, read_moves};
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
 use fdmlab_pipeline::store::write_file_atomic;
@@ -29,6 +29,9 @@ pub struct TrainArgs {
     /// Path after junction i + H in which a corner counts, mm (default 2).
     #[arg(long)]
     pub corner_window_mm: Option<f64>,
+    /// Planner buffers (blocks) the corner calls are tuned for.
+    #[arg(long, value_delimiter = ',', default_values_t = [16, 4, 2])]
+    pub blocks: Vec<usize>,
     #[command(flatten)]
     pub train: super::TrainFlags,
 }
@@ -117,6 +120,7 @@ fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
     let d = Task::default();
     let t = Task { horizons: a.horizons.clone().unwrap_or(d.horizons), corner_window_mm: a.corner_window_mm.unwrap_or(d.corner_window_mm) };
     check_task(&t).map_err(Error::bad_input)?;
+    check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
     Ok(t)
 }
 
@@ -132,17 +136,18 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     for f in &files {
         let bytes = super::read_input(f)?;
         inputs.push(InputRef { name: format!("file:{}", f.display()), hash: store.put(&bytes)? });
-        data.push(fdmlab_pipeline::kinds::turn_prediction::junctions_of(&bytes, &f.display().to_string())?);
+        data.push(fdmlab_pipeline::kinds::turn_prediction::moves_of(&bytes, &f.display().to_string())?);
     }
     let read_s = t0.elapsed().as_secs_f64();
     let mut bar = super::TrainBar::new(ctx, "turns train", 1, params.epochs());
     let t1 = Instant::now();
-    let model = TurnModel::train(&data, &task, &params, &mut |p| bar.epoch(p))?;
+    let model = evaluate::train_and_tune(&data, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
     let train_s = t1.elapsed().as_secs_f64();
     drop(bar);
     let json = turnnet::model_to_json(&model)?;
     let bpk = model.network()?.to_burnpack(&[])?;
-    let params_json = serde_json::json!({"gcode": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(), "task": task, "settings": params});
+    let params_json =
+        serde_json::json!({"gcode": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(), "task": task, "settings": params, "blocks": a.blocks});
     let metrics: BTreeMap<String, f64> = [("rows", model.rows as f64), ("junctions", model.junctions as f64), ("weight_bytes", model.weight_bytes() as f64)]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -162,7 +167,7 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let hash = Hash::of(&json).0;
     let value = serde_json::json!({
         "run": record.id, "model": hash, "files": files.len(), "junctions": model.junctions, "rows": model.rows,
-        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "read_s": read_s, "train_s": train_s,
+        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "call_thresholds": model.call_thresholds, "read_s": read_s, "train_s": train_s,
     });
     ctx.emit(&value, || {
         format!(

@@ -145,7 +145,11 @@ fn every_bundled_spec_gives_the_same_artifacts_with_one_and_two_threads() {
         copy_experiments(&sb.path().join("experiments"));
         let out = sb.cmd(&["--json", "run", "experiments"]).env("FDMLAB_THREADS", threads).output().expect("spawn");
         assert!(out.status.success(), "{threads} thread(s): {}", stderr(&out));
-        results.push(artifacts(&serde_json::from_slice(&out.stdout).expect("json")));
+        let runs: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+        results.push(artifacts(&runs));
+        if threads == "1" {
+            crate::turns::network_beats_every_baseline(&runs);
+        }
     }
     let names: std::collections::BTreeSet<&str> = results[0].keys().filter_map(|k| k.split('/').next()).collect();
     assert_eq!(

@@ -55,7 +55,7 @@ fn synthetic_arcs_become_chords_on_their_circles() {
 }
 
 #[test]
-#[ignore = "issue #12 open: measured 10 of 198,644 sharp corners (> 45°) of the slicer-made corpus enter Marlin's 16-block buffer after an unlimited-lookahead planner at 500 mm/s, 1000 mm/s² is already braking for them; the digest's 'too late' is not reproduced with Marlin's buffer (slicer moves are too short to reach speeds that brake over 16 moves); with 4 or 2 blocks it is, and the prediction fixes it (docs/turns.md, Downstream)"]
+#[ignore = "the issue's premise, not reproduced (disputed in the #12 note): measured 10 of 198,644 sharp corners (> 45°) of the slicer-made corpus enter Marlin's 16-block buffer after an unlimited-lookahead planner at 500 mm/s, 1000 mm/s² is already braking for them; the digest's 'too late' is not reproduced with Marlin's buffer (slicer moves are too short to reach speeds that brake over 16 moves); with 4 or 2 blocks corners are late (7 % and 14 % of the held-out files'), and the network's calls lower the line width most (docs/turns.md, Downstream)"]
 fn most_sharp_corners_of_real_slicer_output_enter_the_buffer_too_late() {
     // The digest (shared/reference/pressure_advance.md, "lag"): at 500 mm/s and
     // 1000 mm/s² most sharp corners reach Marlin's 16-block buffer too late to

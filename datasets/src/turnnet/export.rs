@@ -51,12 +51,24 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     }
     let _ = writeln!(s, " * Output per horizon k (H = {:?}): angle_deg[k], the predicted turn of junction i + H,", m.task.horizons);
     let _ = writeln!(s, " * and corner_p[k], the probability of a turn > 45 deg within {} mm after it", m.task.corner_window_mm);
-    let _ = writeln!(s, " * (call a corner at or above threshold k of FDMLAB_TURNS_THRESHOLD_LIST). Weights: {} bytes of float32. */", m.weight_bytes());
+    let _ = writeln!(s, " * (a corner at or above threshold k of FDMLAB_TURNS_THRESHOLD_LIST, the F1-optimal one; an advance behind an");
+    let _ = writeln!(
+        s,
+        " * N-block planner acts on calls at FDMLAB_TURNS_CALL_THRESHOLD_BN, tuned for line width). Weights: {} bytes of float32. */",
+        m.weight_bytes()
+    );
     let _ = writeln!(s, "#ifndef FDMLAB_TURNS_H\n#define FDMLAB_TURNS_H\n#include <math.h>\n");
     let _ = writeln!(s, "#define FDMLAB_TURNS_INPUTS {n}\n#define FDMLAB_TURNS_HORIZONS {h}");
     // Initialisers, not arrays: an unused static array would warn under -Wall.
     let _ = writeln!(s, "#define FDMLAB_TURNS_HORIZON_LIST {{{}}}", m.task.horizons.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", "));
     let _ = writeln!(s, "#define FDMLAB_TURNS_THRESHOLD_LIST {{{}}}", c_floats(m.thresholds.iter().copied()));
+    let mut buffers: Vec<usize> = m.call_thresholds.iter().map(|c| c.blocks).collect();
+    buffers.dedup();
+    for b in buffers {
+        // Per horizon, the probability at which an advance behind a `b`-block planner acts on a call (above 1: never).
+        let t: Vec<f32> = m.task.horizons.iter().map(|&h| m.call_threshold(b, h).unwrap_or(f64::NAN) as f32).collect();
+        let _ = writeln!(s, "#define FDMLAB_TURNS_CALL_THRESHOLD_B{b} {{{}}}", c_floats(t.into_iter()));
+    }
     let priors: Vec<String> = (0..h).map(|k| m.task.prior_index(k).to_string()).collect();
     let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
     let _ = writeln!(s, "static const float fdmlab_turns_mean[{n}] = {{{}}};", c_floats(m.mean.iter().copied()));
@@ -123,6 +135,7 @@ fn json(m: &TurnModel, label: &str) -> Result<String, DatasetError> {
         "corner_deg": fdmlab_models::turns::features::CORNER_DEG,
         "corner_window_mm": m.task.corner_window_mm,
         "thresholds": m.thresholds,
+        "call_thresholds": m.call_thresholds,
         "columns": m.feature_names,
         "prior_columns": (0..m.task.horizons.len()).map(|k| m.task.prior_index(k)).collect::<Vec<_>>(),
         "mean": m.mean,

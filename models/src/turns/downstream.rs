@@ -95,7 +95,13 @@ fn centred_ramps(steps: &[(f64, f64)], a_e: f64, t: f64) -> f64 {
     steps.iter().map(|&(tau, d)| d * ((t - tau) * a_e / d.abs() + 0.5).clamp(0.0, 1.0)).sum()
 }
 
-/// Worst `|u/v − 1|` from `t0` to `t1` of the pressure model `K·u̇ = v + p − u`
+/// Largest width defect counted at one corner: a line twice as wide, or gone,
+/// is a failed corner either way; beyond that `u/v` measures the division by a
+/// near-zero corner speed (a reversal's), not the print, and one such corner
+/// would outweigh thousands of others in the mean.
+pub const DEFECT_CAP: f64 = 1.0;
+
+/// Worst `|u/v − 1|` (at most [`DEFECT_CAP`]) from `t0` to `t1` of the pressure model `K·u̇ = v + p − u`
 /// with the head at `head(t) = v` and the advance `p` following `target(t)` at
 /// the extruder's limit, from a settled start at `head(t0)`.
 fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, ex: &Extrusion) -> f64 {
@@ -112,6 +118,9 @@ fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f
         let v = head(t + dt);
         if v > 1e-9 {
             worst = worst.max((u / v - 1.0).abs());
+            if worst >= DEFECT_CAP {
+                return DEFECT_CAP;
+            }
         }
     }
     worst
@@ -176,7 +185,7 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
 /// every method and horizon scored on that file.
 pub struct Firmware {
     /// Planner buffer, blocks (0 for a time lookahead).
-    blocks: usize,
+    pub blocks: usize,
     know: Vec<Knowledge>,
     ideal: super::planner::Profile,
     /// Per junction (computed once, shared by every method and horizon).
@@ -252,54 +261,133 @@ fn braking_start_speed(blocks: &[Block]) -> f64 {
     blocks[k].peak_mm_s
 }
 
-/// Late corners and width error of one file at one horizon, given a method's
-/// predictions at that horizon (anchor `i` calls a corner within `window_mm`
-/// of path from junction `i + H`; a sharp junction counts as called when the
-/// window starting at it was). The width
-/// error with prediction is the total defect per sharp corner: the sharp
-/// corners' own plus what the false calls spoil.
-pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
-    let h = pred.horizon;
-    let (know, ideal) = (&firmware.know, &firmware.ideal);
-    let mut called = vec![false; j.len()];
-    for (k, &i) in pred.anchors.iter().enumerate() {
-        if pred.corner_probability[k] >= pred.threshold && i + h < called.len() {
-            called[i + h] = true;
-        }
-    }
-    let mut d = Downstream { method: method.to_string(), horizon: h, blocks: firmware.blocks, ..Default::default() };
-    let (mut sum_p, mut sum_n) = (0.0, 0.0);
-    for idx in h..firmware.events.len() {
-        let (kn, ev) = (&know[idx], &firmware.events[idx]);
+/// One junction's part of the comparison at horizon `h`, with or without a
+/// call on it.
+#[derive(Debug, Clone, Copy, Default)]
+struct Outcome {
+    sharp: bool,
+    late_planner: bool,
+    late_predicted: bool,
+    false_call: bool,
+    /// Width defect with the buffer alone, and with the call (or its absence).
+    defect_planner: f64,
+    defect_predicted: f64,
+}
+
+impl Firmware {
+    /// Junction `idx` (≥ `h`) at horizon `h`, `called` or not: a call says a
+    /// corner lies within `window_mm` from the junction; it is false when none
+    /// does, and trusting it the advance prepares the braking a stop there would
+    /// need (from `v/a` before it) until the junction enters the buffer.
+    fn outcome(&self, j: &[Junction], idx: usize, h: usize, called: bool, window_mm: f64, ex: &Extrusion) -> Outcome {
+        let (kn, ev) = (&self.know[idx], &self.events[idx]);
         let Some(c) = &ev.corner else {
-            // A call says a corner lies within `window_mm` from this junction; it is
-            // false when none does. Braking for a stop here would start v/a before it.
-            if called[idx] && !super::features::corner_target(j, idx, window_mm) {
-                let v = ideal.blocks[idx].exit_mm_s;
-                let t_cancel = ideal.blocks[kn.known_from_move].t_start_s;
-                d.false_calls += 1;
-                sum_p += false_call_defect(v, ev.a, t_cancel - (ev.t_junction - v / ev.a), ex);
+            if !called || super::features::corner_target(j, idx, window_mm) {
+                return Outcome::default();
             }
-            continue;
+            let v = self.ideal.blocks[idx].exit_mm_s;
+            let t_cancel = self.ideal.blocks[kn.known_from_move].t_start_s;
+            return Outcome { false_call: true, defect_predicted: false_call_defect(v, ev.a, t_cancel - (ev.t_junction - v / ev.a), ex), ..Outcome::default() };
         };
-        let t_known_pred = if called[idx] { ideal.blocks[know[idx - h].known_from_move].t_start_s.min(c.t_known) } else { c.t_known };
-        d.sharp += 1;
-        d.late_planner += usize::from(kn.too_late);
-        d.late_predicted += usize::from(kn.too_late && t_known_pred >= c.t_dec);
-        sum_n += c.defect_buffer;
-        sum_p += if t_known_pred >= c.t_known {
+        let t_known_pred = if called { self.ideal.blocks[self.know[idx - h].known_from_move].t_start_s.min(c.t_known) } else { c.t_known };
+        let defect_predicted = if t_known_pred >= c.t_known {
             c.defect_buffer
         } else if t_known_pred - c.t_dec <= window_start(ev.a, ex) {
             c.defect_early
         } else {
             corner_defect(c.v_n, c.v_c, ev.a, t_known_pred - c.t_dec, ex)
         };
+        Outcome {
+            sharp: true,
+            late_planner: kn.too_late,
+            late_predicted: kn.too_late && t_known_pred >= c.t_dec,
+            false_call: false,
+            defect_planner: c.defect_buffer,
+            defect_predicted,
+        }
+    }
+
+    /// Junctions a horizon-`h` prediction can call (those with an anchor `j − H`).
+    fn callable(&self, h: usize) -> std::ops::Range<usize> {
+        h..self.events.len().max(h)
+    }
+}
+
+/// Which junctions `pred`'s anchors call (anchor `i` calls junction `i + H`).
+fn calls(pred: &HorizonPrediction, threshold: f64, n: usize) -> Vec<bool> {
+    let mut called = vec![false; n];
+    for (k, &i) in pred.anchors.iter().enumerate() {
+        if pred.corner_probability[k] >= threshold && i + pred.horizon < n {
+            called[i + pred.horizon] = true;
+        }
+    }
+    called
+}
+
+/// Late corners and width error of one file at one horizon, given a method's
+/// predictions at that horizon (anchor `i` calls a corner within `window_mm`
+/// of path from junction `i + H` when its probability reaches `threshold`).
+/// The width error with prediction is the total defect per sharp corner: the
+/// sharp corners' own plus what the false calls spoil.
+pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, threshold: f64, window_mm: f64, ex: &Extrusion) -> Downstream {
+    let h = pred.horizon;
+    let called = calls(pred, threshold, j.len());
+    let mut d = Downstream { method: method.to_string(), horizon: h, blocks: firmware.blocks, ..Default::default() };
+    let (mut sum_p, mut sum_n) = (0.0, 0.0);
+    for idx in firmware.callable(h) {
+        let o = firmware.outcome(j, idx, h, called[idx], window_mm, ex);
+        d.sharp += usize::from(o.sharp);
+        d.late_planner += usize::from(o.late_planner);
+        d.late_predicted += usize::from(o.late_predicted);
+        d.false_calls += usize::from(o.false_call);
+        sum_n += o.defect_planner;
+        sum_p += o.defect_predicted;
     }
     if d.sharp > 0 {
         d.width_error_planner = sum_n / d.sharp as f64;
         d.width_error_predicted = sum_p / d.sharp as f64;
     }
     d
+}
+
+/// What calling each anchor of `pred` would change: `(probability, Δ total
+/// defect)`, Δ < 0 where the call rescues a corner, > 0 where it is false and
+/// costs width, 0 where it changes nothing. Calls act independently (each
+/// junction is called by one anchor), so a threshold's total is the sum of the
+/// Δ of the anchors it calls.
+pub fn call_gains(j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Vec<(f64, f64)> {
+    let h = pred.horizon;
+    pred.anchors
+        .iter()
+        .zip(&pred.corner_probability)
+        .filter(|(&i, _)| firmware.callable(h).contains(&(i + h)))
+        .map(|(&i, &p)| {
+            let (with, without) = (firmware.outcome(j, i + h, h, true, window_mm, ex), firmware.outcome(j, i + h, h, false, window_mm, ex));
+            (p, with.defect_predicted - without.defect_predicted)
+        })
+        .collect()
+}
+
+/// The probability threshold minimising the total defect over `gains` (of
+/// [`call_gains`], pooled over files): calls are taken in order of falling
+/// probability and the cut is placed where the running sum is lowest (the
+/// fewest calls among equals), midway between the last probability called
+/// and the next. Above every probability (nothing called) when no call pays.
+pub fn best_call_threshold(gains: &mut [(f64, f64)]) -> f64 {
+    gains.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let (mut sum, mut best, mut cut) = (0.0, 0.0, 0);
+    for (k, &(_, d)) in gains.iter().enumerate() {
+        sum += d;
+        // Probabilities tied with the next one cannot be split by a threshold.
+        if sum < best && gains.get(k + 1).is_none_or(|n| n.0 < gains[k].0) {
+            (best, cut) = (sum, k + 1);
+        }
+    }
+    match cut {
+        0 => gains.first().map_or(1.0, |g| g.0.max(1.0)) + 1e-6,
+        c if c == gains.len() => gains[c - 1].0,
+        c => 0.5 * (gains[c - 1].0 + gains[c].0),
+    }
 }
 
 #[cfg(test)]
@@ -349,19 +437,37 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
-        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
+        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.5, 0.0, &ex);
+        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.5, 0.0, &ex);
         for d in [&small, &marlin] {
             assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
         }
         // Known 10 or 80 mm ahead of a corner braked for over ≈ 100 mm, the advance
-        // starts after the speed change; called 160 mm ahead it starts in time, and
-        // the defect is what the rate limit leaves, whatever the buffer.
+        // starts after the speed change and the line more than doubles at the
+        // ≈ 6 mm/s corner (junction deviation, 90°): the cap. Called 160 mm ahead it
+        // starts in time, and the defect is what the rate limit leaves, whatever the buffer.
         for d in [&small, &marlin] {
-            assert!(d.width_error_predicted < 0.25 * d.width_error_planner, "{d:?}");
+            assert_eq!(d.width_error_planner, DEFECT_CAP, "{d:?}");
+            assert!(d.width_error_predicted < 0.5 * d.width_error_planner, "{d:?}");
         }
         assert!((small.width_error_predicted - marlin.width_error_predicted).abs() < 1e-12, "{small:?} {marlin:?}");
-        assert!(marlin.width_error_planner < small.width_error_planner, "{marlin:?} {small:?}");
+    }
+
+    #[test]
+    fn the_call_threshold_is_the_cut_with_the_lowest_total() {
+        // Calls by falling probability: Δ −2, +1, −0.5, +3, −0.1 → running sums −2,
+        // −1, −1.5, 1.5, 1.4: the lowest is after the first call, so the cut lies
+        // between 0.9 and 0.8.
+        let mut g = vec![(0.5, -0.1), (0.8, 1.0), (0.9, -2.0), (0.6, 3.0), (0.7, -0.5)];
+        assert!((best_call_threshold(&mut g) - 0.85).abs() < 1e-12);
+        // Tied probabilities are one decision: 0.9 with −2 and +2.5 together cost 0.5.
+        let mut g = vec![(0.9, -2.0), (0.9, 2.5), (0.4, -1.0)];
+        assert!((best_call_threshold(&mut g) - 0.4).abs() < 1e-12);
+        // When no call pays, nothing is called; when every call pays, all are.
+        let mut g = vec![(1.0, 0.0), (0.6, 0.5)];
+        assert!(best_call_threshold(&mut g) > 1.0);
+        let mut g = vec![(0.3, -1.0), (0.2, -0.5)];
+        assert!((best_call_threshold(&mut g) - 0.2).abs() < 1e-12);
     }
 
     #[test]
@@ -374,6 +480,8 @@ mod tests {
         let at = corner_defect(200.0, 10.0, 1000.0, 0.0, &ex);
         let late = corner_defect(200.0, 10.0, 1000.0, 0.05, &ex);
         assert!(early < at && at < late, "{early} {at} {late}");
+        // 50 ms late the line more than doubles at the 10 mm/s corner: counted at the cap.
+        assert_eq!(late, DEFECT_CAP);
         // An instant extruder known in time is the twin's exact advance (K_A = K): no
         // defect but the step that straddles a kink of the speed profile, where the
         // advance misses at most 2·K·a for one step: Δu ≤ 2·a·dt = 0.4 mm/s, 0.8 % of

@@ -2,9 +2,9 @@
 //! corner ROC AUC, for the network and every baseline on the same anchors.
 
 use super::baselines::Knn;
-use super::downstream::{downstream, Downstream, Extrusion, Firmware};
+use super::downstream::{best_call_threshold, call_gains, downstream, Downstream, Extrusion, Firmware};
 use super::features::{corner_target, Task};
-use super::net::{HorizonPrediction, TurnModel};
+use super::net::{CallThreshold, HorizonPrediction, TurnModel};
 use super::planner::{Lookahead, Planner, PlannerParams};
 use super::{Junction, Move};
 use crate::ModelError;
@@ -165,7 +165,9 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
                 .collect();
             for (b, fw) in firmware.iter().enumerate() {
                 for (mi, call) in &calls {
-                    let d = downstream(&preds[*mi].method, j, fw, call, model.task.corner_window_mm, &ex);
+                    // The network acts on calls at the threshold tuned for this buffer.
+                    let threshold = if preds[*mi].method == NETWORK { model.call_threshold(fw.blocks, h)? } else { call.threshold };
+                    let d = downstream(&preds[*mi].method, j, fw, call, threshold, model.task.corner_window_mm, &ex);
                     pooled_down.entry((b, slot, *mi)).or_default().push(d.clone());
                     fe.downstream.push(d);
                 }
@@ -202,6 +204,49 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
         .collect();
     let downstream = pooled_down.values().map(|d| Downstream::pool(d)).collect();
     Ok((Summary { files: files.len(), junctions: total, horizons, downstream }, per_file))
+}
+
+/// Train on the files' junctions, then tune the corner calls for each buffer
+/// of `blocks` on the same files ([`tune_calls`]).
+pub fn train_and_tune(
+    files: &[Vec<Move>],
+    task: &super::features::Task,
+    params: &crate::nets::params::ValidTrainParams,
+    blocks: &[usize],
+    on_epoch: crate::nets::train::OnEpoch<'_>,
+) -> Result<TurnModel, ModelError> {
+    let junctions: Vec<Vec<Junction>> = files.iter().map(|m| super::junctions(m)).collect();
+    let mut model = TurnModel::train(&junctions, task, params, on_epoch)?;
+    tune_calls(&mut model, files, blocks)?;
+    Ok(model)
+}
+
+/// Choose the network's corner-call threshold for each planner buffer of
+/// `blocks` and each horizon on the training files' moves: the one minimising
+/// the downstream width error there ([`best_call_threshold`]). A call is worth
+/// its false alarms only where the buffer would learn of corners late, so the
+/// threshold depends on the buffer, not on F1.
+pub fn tune_calls(model: &mut TurnModel, files: &[Vec<Move>], blocks: &[usize]) -> Result<(), ModelError> {
+    let ex = Extrusion::default();
+    let mut gains: Vec<Vec<(f64, f64)>> = vec![vec![]; blocks.len() * model.task.horizons.len()];
+    for moves in files {
+        let j = &super::junctions(moves);
+        let firmware: Vec<Firmware> = blocks.iter().map(|&n| Ok(Firmware::new(&reference_planner(n)?, moves, j, &ex))).collect::<Result<_, ModelError>>()?;
+        for (slot, &h) in model.task.horizons.iter().enumerate() {
+            let pred = model.predict(j, h)?;
+            for (b, fw) in firmware.iter().enumerate() {
+                gains[b * model.task.horizons.len() + slot].extend(call_gains(j, fw, &pred, model.task.corner_window_mm, &ex));
+            }
+        }
+    }
+    let horizons = model.task.horizons.clone();
+    model.call_thresholds = blocks
+        .iter()
+        .flat_map(|&n| horizons.iter().map(move |&h| (n, h)))
+        .zip(gains.iter_mut())
+        .map(|((blocks, horizon), g)| CallThreshold { blocks, horizon, threshold: best_call_threshold(g) })
+        .collect();
+    Ok(())
 }
 
 fn trace(j: &[Junction], h: usize, t: &Truth, preds: &[MethodPredictions]) -> Trace {

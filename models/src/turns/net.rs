@@ -38,10 +38,23 @@ pub struct TurnModel {
     /// Per horizon: the corner probability above which a corner is called
     /// (the training rows' F1-optimal threshold).
     pub thresholds: Vec<f32>,
+    /// Per planner buffer and horizon: the probability above which the advance
+    /// acts on a corner call, chosen on the training files to minimise the
+    /// downstream width error (`evaluate::tune_calls`); `thresholds` where absent.
+    #[serde(default)]
+    pub call_thresholds: Vec<CallThreshold>,
     pub params: ValidTrainParams,
     /// Training rows (anchors) and junctions read.
     pub rows: usize,
     pub junctions: usize,
+}
+
+/// The corner-call threshold of one planner buffer and horizon.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CallThreshold {
+    pub blocks: usize,
+    pub horizon: usize,
+    pub threshold: f64,
 }
 
 /// Predictions of one horizon for anchors `i` (target junction `i + H`).
@@ -139,6 +152,7 @@ impl TurnModel {
             std,
             weights,
             thresholds: vec![0.5; task.horizons.len()],
+            call_thresholds: vec![],
             params: params.clone(),
             rows,
             junctions: files.iter().map(Vec::len).sum(),
@@ -221,6 +235,13 @@ impl TurnModel {
             }
         }
         Ok(pred)
+    }
+
+    /// The threshold at which the advance acts on a corner call with a planner
+    /// buffer of `blocks` at `horizon` (tuned for that buffer, else the F1 one).
+    pub fn call_threshold(&self, blocks: usize, horizon: usize) -> Result<f64, ModelError> {
+        let tuned = self.call_thresholds.iter().find(|c| c.blocks == blocks && c.horizon == horizon);
+        Ok(tuned.map_or(self.thresholds[self.slot(horizon)?] as f64, |c| c.threshold))
     }
 
     /// Weight size in bytes as float32 (weights, biases, standardisation).

@@ -10,7 +10,7 @@ use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
 use fdmlab_models::nets::{Schedule, TrainParams, ValidTrainParams};
 use fdmlab_models::turns::evaluate::{self, FileEval};
 use fdmlab_models::turns::features::Task;
-use fdmlab_models::turns::net::{self, TurnModel};
+use fdmlab_models::turns::net;
 use fdmlab_models::turns::{Junction, Move};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -169,12 +169,22 @@ pub fn read_moves(path: &Path) -> Result<Vec<Move>> {
     Ok(fdmlab_datasets::turns::read_moves(path)?)
 }
 
+/// Planner buffers of the downstream comparison: 1–4 distinct sizes within 1–64 blocks.
+pub fn check_blocks(b: &[usize]) -> std::result::Result<(), String> {
+    if b.is_empty() || b.len() > 4 || b.iter().any(|&n| n == 0 || n > 64) || (1..b.len()).any(|i| b[..i].contains(&b[i])) {
+        return Err(format!("{b:?}: give 1–4 distinct buffer sizes within 1–64 blocks"));
+    }
+    Ok(())
+}
+
 /// Parameters of the `train` stage.
 #[derive(Debug, Clone, Serialize)]
 struct TrainStage {
     task: Task,
     settings: ValidTrainParams,
     files: Vec<String>,
+    /// Planner buffers the corner calls are tuned for.
+    blocks: Vec<usize>,
 }
 
 /// Parameters of the `eval` stage.
@@ -211,10 +221,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: TurnSpec = spec.parse()?;
     let task = Task { horizons: s.task.horizons.clone(), corner_window_mm: s.task.corner_window_mm };
     check_task(&task).map_err(|e| spec.bad_value("task.horizons", e))?;
-    let b = &s.downstream.blocks;
-    if b.is_empty() || b.len() > 4 || b.iter().any(|&n| n == 0 || n > 64) || (1..b.len()).any(|i| b[..i].contains(&b[i])) {
-        return Err(spec.bad_value("downstream.blocks", format!("{b:?}: give 1–4 distinct buffer sizes within 1–64 blocks")));
-    }
+    check_blocks(&s.downstream.blocks).map_err(|e| spec.bad_value("downstream.blocks", e))?;
     let m = &s.model;
     let settings = TrainParams {
         hidden: m.hidden.clone(),
@@ -239,21 +246,26 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let mut stages = vec![];
     let tf = train_files.clone();
     stages.push(
-        Stage::typed("train", 1, TrainStage { task, settings, files: train_labels.clone() }, move |input, p: &TrainStage| {
-            let mut data = vec![];
-            for (path, name) in tf.iter().zip(&p.files) {
-                data.push(junctions_of(&input.file(path)?, name)?);
-            }
-            let model =
-                TurnModel::train(&data, &p.task, &p.settings, &mut |pr| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss)))?;
-            let bpk = model.network()?.to_burnpack(&[])?;
-            Ok(StageOutput::default()
-                .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
-                .add("turn-model.bpk", "application/octet-stream", bpk)
-                .metric("rows", model.rows as f64)
-                .metric("junctions", model.junctions as f64)
-                .metric("weight_bytes", model.weight_bytes() as f64))
-        })?
+        Stage::typed(
+            "train",
+            1,
+            TrainStage { task, settings, files: train_labels.clone(), blocks: s.downstream.blocks.clone() },
+            move |input, p: &TrainStage| {
+                let mut data = vec![];
+                for (path, name) in tf.iter().zip(&p.files) {
+                    data.push(moves_of(&input.file(path)?, name)?);
+                }
+                let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
+                let model = evaluate::train_and_tune(&data, &p.task, &p.settings, &p.blocks, on_epoch)?;
+                let bpk = model.network()?.to_burnpack(&[])?;
+                Ok(StageOutput::default()
+                    .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
+                    .add("turn-model.bpk", "application/octet-stream", bpk)
+                    .metric("rows", model.rows as f64)
+                    .metric("junctions", model.junctions as f64)
+                    .metric("weight_bytes", model.weight_bytes() as f64))
+            },
+        )?
         .reading(train_files.clone()),
     );
     let tf = test_files.clone();
@@ -273,9 +285,13 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             }
             let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks)?;
             let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
-            for d in summary.downstream.iter().filter(|d| d.method == evaluate::NETWORK) {
+            for d in &summary.downstream {
                 // Marlin's 16 blocks keep the plain names; other buffers say theirs.
                 let b = if d.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", d.blocks) };
+                out = out.metric(&format!("{}_width_h{}{b}", d.method, d.horizon), d.width_error_predicted);
+                if d.method != evaluate::NETWORK {
+                    continue;
+                }
                 out = out
                     .metric(&format!("late_planner_h{}{b}", d.horizon), d.late_planner as f64)
                     .metric(&format!("late_predicted_h{}{b}", d.horizon), d.late_predicted as f64)
