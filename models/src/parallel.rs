@@ -19,3 +19,28 @@ pub fn threads() -> usize {
         n => n,
     }
 }
+
+/// Map `f` over `items` on [`threads`] threads, results in input order. Items
+/// are handed out one at a time (uneven items keep every thread busy).
+pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let n = threads().min(items.len().max(1));
+    if n <= 1 {
+        return items.iter().map(&f).collect();
+    }
+    let next = AtomicUsize::new(0);
+    let mut done: Vec<(usize, R)> = std::thread::scope(|scope| {
+        let worker = || {
+            let mut mine = vec![];
+            loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(item) = items.get(i) else { return mine };
+                mine.push((i, f(item)));
+            }
+        };
+        let handles: Vec<_> = (0..n).map(|_| scope.spawn(worker)).collect();
+        // A worker only panics if `f` does; re-raise it here rather than hide it.
+        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
+    });
+    done.sort_unstable_by_key(|d| d.0);
+    done.into_iter().map(|d| d.1).collect()
+}

@@ -287,25 +287,27 @@ pub struct BenchArgs {
 pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let files = gcode_files(&a.gcode)?;
     let t = Instant::now();
-    let mut corpus = vec![];
+    let mut corpus_moves = vec![];
     for f in &files {
-        corpus.push(fdmlab_models::turns::junctions(&read_moves(f)?));
+        corpus_moves.push(read_moves(f)?);
     }
+    let corpus: Vec<Vec<Junction>> = corpus_moves.iter().map(|m| fdmlab_models::turns::junctions(m)).collect();
     let read_s = t.elapsed().as_secs_f64();
     let per_pass: usize = corpus.iter().map(Vec::len).sum();
     if per_pass == 0 {
         return Err(Error::bad_input("the G-code holds no junctions").into());
     }
     // Repeat the corpus (each copy a separate sequence) up to the requested size.
-    let mut data = vec![];
+    let (mut data, mut moves) = (vec![], vec![]);
     let mut n = 0;
     'fill: loop {
-        for c in &corpus {
+        for (c, m) in corpus.iter().zip(&corpus_moves) {
             if n >= a.junctions {
                 break 'fill;
             }
             let take = c.len().min(a.junctions - n);
             data.push(c[..take].to_vec());
+            moves.push(m[..take + 1].to_vec());
             n += take;
         }
     }
@@ -313,9 +315,13 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let params = net::default_params(7).check()?;
     let mut bar = super::TrainBar::new(ctx, "bench turns-train", 1, params.epochs());
     let t = Instant::now();
-    let model = TurnModel::train(&data, &task, &params, &mut |p| bar.epoch(p))?;
+    let mut model = TurnModel::train(&data, &task, &params, &mut |p| bar.epoch(p))?;
     let train_s = t.elapsed().as_secs_f64();
     drop(bar);
+    // What `turns train` adds: the call thresholds for the default buffers.
+    let t = Instant::now();
+    evaluate::tune_calls(&mut model, &moves, &[evaluate::MARLIN_BLOCKS, 4, 2])?;
+    let tune_s = t.elapsed().as_secs_f64();
     // Inference: burn in batches vs the exported C header on the same rows.
     let sample = &corpus[0];
     let x = fdmlab_models::turns::features::features(sample, &task);
@@ -326,12 +332,12 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let c_us = c_inference_us(&model, &x[..cols.min(x.len())])?;
     let value = serde_json::json!({
         "files": files.len(), "junctions": n, "rows": model.rows, "epochs": params.epochs(), "read_s": read_s, "train_s": train_s,
-        "weight_bytes": model.weight_bytes(), "burn_predict_us_per_junction": burn_us, "c_predict_us_per_junction": c_us,
+        "call_tuning_s": tune_s, "weight_bytes": model.weight_bytes(), "burn_predict_us_per_junction": burn_us, "c_predict_us_per_junction": c_us,
         "c_speedup_over_burn": c_us.map(|c| burn_us / c), "threads": std::thread::available_parallelism().map(|p| p.get()).unwrap_or(1),
     });
     ctx.emit(&value, || {
         format!(
-            "training on {n} junctions ({} rows, {} epochs): {train_s:.1} s (corpus of {} file(s) read in {read_s:.2} s)\nweights: {} bytes float32\ninference: burn {burn_us:.3} µs/junction (batched, features included), C header {}\n",
+            "training on {n} junctions ({} rows, {} epochs): {train_s:.1} s, then call thresholds for 16, 4 and 2 blocks: {tune_s:.1} s (corpus of {} file(s) read in {read_s:.2} s)\nweights: {} bytes float32\ninference: burn {burn_us:.3} µs/junction (batched, features included), C header {}\n",
             model.rows,
             params.epochs(),
             files.len(),

@@ -105,19 +105,7 @@ pub fn objective_mm(params: &HbotParams, data: &[Measurement]) -> Result<f64, Mo
     Ok(r.iter().map(|v| v.abs()).sum::<f64>() / r.len() as f64)
 }
 
-/// Map `f` over `items` on [`crate::parallel::threads`] threads, results in input order.
-pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = crate::parallel::threads().min(items.len().max(1));
-    if threads <= 1 {
-        return items.iter().map(&f).collect();
-    }
-    let chunk = items.len().div_ceil(threads);
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = items.chunks(chunk).map(|c| scope.spawn(|| c.iter().map(&f).collect::<Vec<R>>())).collect();
-        // A worker only panics if `f` does; re-raise it here rather than hide it.
-        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
-    })
-}
+pub use crate::parallel::par_map;
 
 /// Default significance threshold of [`screen`]: 3 % of the largest range. With the
 /// source's protocol it keeps T0, Kt, J_M, b_bridge and Fc_bridge and drops the belt

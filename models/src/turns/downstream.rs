@@ -103,15 +103,22 @@ pub const DEFECT_CAP: f64 = 1.0;
 
 /// Worst `|u/v − 1|` (at most [`DEFECT_CAP`]) from `t0` to `t1` of the pressure model `K·u̇ = v + p − u`
 /// with the head at `head(t) = v` and the advance `p` following `target(t)` at
-/// the extruder's limit, from a settled start at `head(t0)`.
-fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, ex: &Extrusion) -> f64 {
+/// the extruder's limit, from a settled start at `head(t0)`. From `quiet` on,
+/// head and target are constant: once `p` has caught up, `u` only relaxes
+/// monotonically towards `v + p`, so the worst is already seen and the loop ends.
+fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, quiet: f64, ex: &Extrusion) -> f64 {
     let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm); // a_e: head-equivalent mm/s²
     let dt = 2e-4;
     let steps = ((t1 - t0) / dt).ceil() as usize;
     let (mut p, mut u, mut worst) = (0.0f64, head(t0), 0.0f64);
     for s in 0..steps {
         let t = t0 + s as f64 * dt;
-        p += (target(t) - p).clamp(-a_e * dt, a_e * dt);
+        let goal = target(t);
+        if t >= quiet && p == goal {
+            break;
+        }
+        // At the limit, or onto the target exactly once within reach.
+        p = if (goal - p).abs() <= a_e * dt { goal } else { p + (goal - p).signum() * a_e * dt };
         // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
         let v_in = head(t + 0.5 * dt) + p;
         u = v_in + (u - v_in) * (-dt / k).exp();
@@ -161,7 +168,9 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     // Nothing before the corner is known; then the ideal ramps, caught up at the limit.
     let target = |t: f64| if t >= t_know_s { centred_ramps(&steps, a_e, t) } else { 0.0 };
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
-    pressure_defect(&head, &target, window_start(a, ex), 2.0 * t_b + 3.0 * k, ex)
+    // Quiet once cruise resumes, the last ramp is done and the knowledge has come.
+    let quiet = (2.0 * t_b + 0.5 * k * a / a_e).max(t_know_s);
+    pressure_defect(&head, &target, window_start(a, ex), 2.0 * t_b + 3.0 * k, quiet, ex)
 }
 
 /// Width defect of a false call: the head cruises at `v` through a junction
@@ -178,7 +187,7 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
     }
     let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
     let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
-    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, ex)
+    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, t_cancel_s.max(0.5 * k * a / a_e), ex)
 }
 
 /// What one planner knows of one file, and its full-lookahead plan: shared by

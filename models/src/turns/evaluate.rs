@@ -228,15 +228,23 @@ pub fn train_and_tune(
 /// threshold depends on the buffer, not on F1.
 pub fn tune_calls(model: &mut TurnModel, files: &[Vec<Move>], blocks: &[usize]) -> Result<(), ModelError> {
     let ex = Extrusion::default();
-    let mut gains: Vec<Vec<(f64, f64)>> = vec![vec![]; blocks.len() * model.task.horizons.len()];
-    for moves in files {
+    let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
+    let cells = blocks.len() * model.task.horizons.len();
+    // Per file (on every core), per (buffer, horizon) cell: the gains of its calls.
+    let per_file = crate::parallel::par_map(files, |moves| -> Result<Vec<Vec<(f64, f64)>>, ModelError> {
         let j = &super::junctions(moves);
-        let firmware: Vec<Firmware> = blocks.iter().map(|&n| Ok(Firmware::new(&reference_planner(n)?, moves, j, &ex))).collect::<Result<_, ModelError>>()?;
-        for (slot, &h) in model.task.horizons.iter().enumerate() {
-            let pred = model.predict(j, h)?;
-            for (b, fw) in firmware.iter().enumerate() {
-                gains[b * model.task.horizons.len() + slot].extend(call_gains(j, fw, &pred, model.task.corner_window_mm, &ex));
-            }
+        let preds: Vec<HorizonPrediction> = model.task.horizons.iter().map(|&h| model.predict(j, h)).collect::<Result<_, _>>()?;
+        let mut out = Vec::with_capacity(cells);
+        for planner in &planners {
+            let fw = Firmware::new(planner, moves, j, &ex);
+            out.extend(preds.iter().map(|p| call_gains(j, &fw, p, model.task.corner_window_mm, &ex)));
+        }
+        Ok(out)
+    });
+    let mut gains: Vec<Vec<(f64, f64)>> = vec![vec![]; cells];
+    for file in per_file {
+        for (all, part) in gains.iter_mut().zip(file?) {
+            all.extend(part);
         }
     }
     let horizons = model.task.horizons.clone();
