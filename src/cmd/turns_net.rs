@@ -3,6 +3,7 @@
 
 use super::Ctx;
 use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
+use fdmlab_models::turns::downstream::{Downstream, Firmware};
 use fdmlab_models::turns::evaluate;
 use fdmlab_models::turns::features::Task;
 use fdmlab_models::turns::net::{self, TurnModel};
@@ -45,6 +46,9 @@ pub struct EvalArgs {
     pub model: String,
     #[arg(long, default_value_t = 16)]
     pub horizon: usize,
+    /// Planner buffers (blocks) of the line-width comparison.
+    #[arg(long, value_delimiter = ',', default_values_t = [16, 4, 2])]
+    pub blocks: Vec<usize>,
 }
 
 /// Arguments of `fdmlab turns predict`.
@@ -198,16 +202,26 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let Loaded { model, hash, run } = load_model(&store, &a.model)?;
     let slot = model.slot(a.horizon)?;
-    let (_, j) = one_file(&a.file)?;
+    check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
+    let (moves, j) = one_file(&a.file)?;
     let train = training_junctions(&store, run.as_ref())?;
     let knn = if train.is_empty() { vec![] } else { fdmlab_models::turns::contenders::fit_knn(&train, &model.task)? };
     let t = evaluate::truth(&j, &model.task, a.horizon);
-    let (preds, _) = evaluate::predictions(&j, &model, a.horizon, knn.get(slot))?;
+    let (preds, raw) = evaluate::predictions(&j, &model, a.horizon, knn.get(slot))?;
     let scores: Vec<evaluate::MethodScore> = preds.iter().map(|p| evaluate::score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect();
+    // The line-width comparison at each buffer: every method's calls driving the advance.
+    let ex = fdmlab_models::turns::downstream::Extrusion::default();
+    let firmware: Vec<Firmware> =
+        a.blocks.iter().map(|&n| Ok(Firmware::new(&evaluate::reference_planner(n)?, &moves, &j, &ex))).collect::<anyhow::Result<_>>()?;
+    let down: Vec<Downstream> = evaluate::downstream_of_methods(&j, &firmware, &model, &preds, &raw)?.into_iter().map(|(_, _, d)| d).collect();
     let value = serde_json::json!({
         "file": a.file.display().to_string(), "model": hash.0, "horizon": a.horizon, "junctions": j.len(), "rows": t.angle_deg.len(),
         "corners": t.corner.iter().filter(|c| **c).count(),
         "methods": scores.iter().map(|m| serde_json::json!({"method": m.method, "mae_deg": finite(m.mae_deg), "f1": finite(m.f1), "auc": finite(m.auc)})).collect::<Vec<_>>(),
+        "downstream": down.iter().map(|d| serde_json::json!({
+            "blocks": d.blocks, "method": d.method, "sharp": d.sharp, "late_buffer_alone": d.late_planner, "late": d.late_predicted,
+            "false_calls": d.false_calls, "width_error_buffer_alone": finite(d.width_error_planner), "width_error": finite(d.width_error_predicted),
+        })).collect::<Vec<_>>(),
     });
     ctx.emit(&value, || {
         let mut s = format!(
@@ -223,6 +237,19 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
         );
         for m in &scores {
             let _ = writeln!(s, "  {:<16} {:>9.2} {:>6.3} {:>6.3}", m.method, m.mae_deg, m.f1, m.auc);
+        }
+        let _ = writeln!(s, "line-width error (%) with each method's calls driving the advance (buffer alone in brackets)");
+        let _ = writeln!(s, "  {:<8} {:<16} {:>6} {:>12} {:>10}", "blocks", "method", "late", "false calls", "width");
+        for d in &down {
+            let _ = writeln!(
+                s,
+                "  {:<8} {:<16} {:>6} {:>12} {:>10}",
+                d.blocks,
+                d.method,
+                d.late_predicted,
+                d.false_calls,
+                format!("{:.1} ({:.1})", 100.0 * d.width_error_predicted, 100.0 * d.width_error_planner)
+            );
         }
         s
     });

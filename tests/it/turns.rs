@@ -85,6 +85,14 @@ fn train_eval_predict_and_determinism() {
     let net = method(&e, "network");
     let none = method(&e, "no-turn");
     assert!(net["mae_deg"].as_f64().unwrap_or(f64::NAN) < none["mae_deg"].as_f64().unwrap_or(0.0), "{e}");
+    // The line-width comparison: every method at each default buffer; a method that
+    // never calls a corner ("no turn") leaves the buffer alone's width exactly.
+    let down = e["downstream"].as_array().expect("downstream");
+    assert_eq!(down.len(), 3 * names.len(), "{e}");
+    for d in down.iter().filter(|d| d["method"] == "no-turn") {
+        assert_eq!(d["false_calls"], 0);
+        assert_eq!(d["width_error"], d["width_error_buffer_alone"], "{d}");
+    }
 
     // Predictions: one row per junction i + H, the line of the move ending there.
     let (text, lines) = print(6, 28.0, 22.0, 0.9);

@@ -128,6 +128,28 @@ pub fn reference_planner(blocks: usize) -> Result<Planner, ModelError> {
     PlannerParams { speed_mm_s: Some(500.0), lookahead: Lookahead::Blocks { n: blocks }, ..PlannerParams::marlin() }.check()
 }
 
+/// Every method's corner calls (`preds`, on the network's anchors `raw`) driving
+/// the advance with each planner of `firmware`: `(buffer index, method index,
+/// result)`. The network acts at the call threshold tuned for each buffer.
+pub fn downstream_of_methods(
+    j: &[Junction],
+    firmware: &[Firmware],
+    model: &TurnModel,
+    preds: &[MethodPredictions],
+    raw: &HorizonPrediction,
+) -> Result<Vec<(usize, usize, Downstream)>, ModelError> {
+    let ex = Extrusion::default();
+    let mut out = vec![];
+    for (b, fw) in firmware.iter().enumerate() {
+        for (mi, p) in preds.iter().enumerate().filter(|(_, p)| p.corner_score.len() == raw.anchors.len()) {
+            let threshold = if p.method == NETWORK { model.call_threshold(fw.blocks, raw.horizon)? } else { p.threshold };
+            let call = HorizonPrediction { corner_probability: p.corner_score.clone(), threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() };
+            out.push((b, mi, downstream(&p.method, j, fw, &call, threshold, model.task.corner_window_mm, &ex)));
+        }
+    }
+    Ok(out)
+}
+
 /// Marlin's default planner buffer, blocks.
 pub const MARLIN_BLOCKS: usize = 16;
 
@@ -151,26 +173,9 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
         for (slot, &h) in model.task.horizons.iter().enumerate() {
             let t = truth(j, &model.task, h);
             let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
-            // Every method's corner calls drive the advance in turn (on the network's anchors).
-            let calls: Vec<(usize, HorizonPrediction)> = preds
-                .iter()
-                .enumerate()
-                .filter(|(_, p)| p.corner_score.len() == raw.anchors.len())
-                .map(|(mi, p)| {
-                    (
-                        mi,
-                        HorizonPrediction { corner_probability: p.corner_score.clone(), threshold: p.threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() },
-                    )
-                })
-                .collect();
-            for (b, fw) in firmware.iter().enumerate() {
-                for (mi, call) in &calls {
-                    // The network acts on calls at the threshold tuned for this buffer.
-                    let threshold = if preds[*mi].method == NETWORK { model.call_threshold(fw.blocks, h)? } else { call.threshold };
-                    let d = downstream(&preds[*mi].method, j, fw, call, threshold, model.task.corner_window_mm, &ex);
-                    pooled_down.entry((b, slot, *mi)).or_default().push(d.clone());
-                    fe.downstream.push(d);
-                }
+            for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
+                pooled_down.entry((b, slot, mi)).or_default().push(d.clone());
+                fe.downstream.push(d);
             }
             fe.horizons.push(HorizonScores {
                 horizon: h,
