@@ -31,7 +31,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub corner_window_mm: Option<f64>,
     /// Planner buffers (blocks) the corner calls are tuned for.
-    #[arg(long, value_delimiter = ',', default_values_t = [16, 4, 2])]
+    #[arg(long, value_delimiter = ',', default_values_t = evaluate::DEFAULT_BLOCKS)]
     pub blocks: Vec<usize>,
     #[command(flatten)]
     pub train: super::TrainFlags,
@@ -47,7 +47,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 16)]
     pub horizon: usize,
     /// Planner buffers (blocks) of the line-width comparison.
-    #[arg(long, value_delimiter = ',', default_values_t = [16, 4, 2])]
+    #[arg(long, value_delimiter = ',', default_values_t = evaluate::DEFAULT_BLOCKS)]
     pub blocks: Vec<usize>,
 }
 
@@ -347,7 +347,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     drop(bar);
     // What `turns train` adds: the call thresholds for the default buffers.
     let t = Instant::now();
-    evaluate::tune_calls(&mut model, &moves, &[evaluate::MARLIN_BLOCKS, 4, 2])?;
+    evaluate::tune_calls(&mut model, &moves, &evaluate::DEFAULT_BLOCKS)?;
     let tune_s = t.elapsed().as_secs_f64();
     // Inference: burn in batches vs the exported C header on the same rows.
     let sample = &corpus[0];
@@ -364,9 +364,10 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     });
     ctx.emit(&value, || {
         format!(
-            "training on {n} junctions ({} rows, {} epochs): {train_s:.1} s, then call thresholds for 16, 4 and 2 blocks: {tune_s:.1} s (corpus of {} file(s) read in {read_s:.2} s)\nweights: {} bytes float32\ninference: burn {burn_us:.3} µs/junction (batched, features included), C header {}\n",
+            "training on {n} junctions ({} rows, {} epochs): {train_s:.1} s, then call thresholds for {:?} blocks: {tune_s:.1} s (corpus of {} file(s) read in {read_s:.2} s)\nweights: {} bytes float32\ninference: burn {burn_us:.3} µs/junction (batched, features included), C header {}\n",
             model.rows,
             params.epochs(),
+            evaluate::DEFAULT_BLOCKS,
             files.len(),
             model.weight_bytes(),
             c_us.map(|u| format!("{u:.3} µs/junction ({:.1}× burn)", burn_us / u)).unwrap_or_else(|| "not measured (no cc)".into())

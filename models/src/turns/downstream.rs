@@ -45,6 +45,13 @@ impl Default for Extrusion {
     }
 }
 
+impl Extrusion {
+    /// The extruder's acceleration limit as head-equivalent mm/s².
+    fn head_accel_limit(&self) -> f64 {
+        self.e_accel_mm_s2 / self.e_per_mm
+    }
+}
+
 /// Corners seen too late and line-width error at one horizon.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 pub struct Downstream {
@@ -107,7 +114,7 @@ pub const DEFECT_CAP: f64 = 1.0;
 /// head and target are constant: once `p` has caught up, `u` only relaxes
 /// monotonically towards `v + p`, so the worst is already seen and the loop ends.
 fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, quiet: f64, ex: &Extrusion) -> f64 {
-    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm); // a_e: head-equivalent mm/s²
+    let (k, a_e) = (ex.k_s, ex.head_accel_limit());
     let dt = 2e-4;
     let steps = ((t1 - t0) / dt).ceil() as usize;
     let (mut p, mut u, mut worst) = (0.0f64, head(t0), 0.0f64);
@@ -136,7 +143,7 @@ fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f
 /// Half the first ramp (K·a at the extruder's limit): how long before the
 /// braking starts its centred ramp does.
 fn ramp_lead(a: f64, ex: &Extrusion) -> f64 {
-    0.5 * ex.k_s * a / (ex.e_accel_mm_s2 / ex.e_per_mm)
+    0.5 * ex.k_s * a / ex.head_accel_limit()
 }
 
 /// Where a defect window opens, relative to the braking start: 50 ms before the
@@ -152,7 +159,7 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     if !(v_n > v_c && a > 0.0 && v_n > 0.0) {
         return 0.0;
     }
-    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
+    let (k, a_e) = (ex.k_s, ex.head_accel_limit());
     let t_b = (v_n - v_c) / a;
     let head = |t: f64| -> f64 {
         if t < 0.0 || t >= 2.0 * t_b {
@@ -169,7 +176,7 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     let target = |t: f64| if t >= t_know_s { centred_ramps(&steps, a_e, t) } else { 0.0 };
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
     // Quiet once cruise resumes, the last ramp is done and the knowledge has come.
-    let quiet = (2.0 * t_b + 0.5 * k * a / a_e).max(t_know_s);
+    let quiet = (2.0 * t_b + ramp_lead(a, ex)).max(t_know_s);
     pressure_defect(&head, &target, window_start(a, ex), 2.0 * t_b + 3.0 * k, quiet, ex)
 }
 
@@ -185,9 +192,9 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
     if t_cancel_s <= -ramp_lead(a, ex) {
         return 0.0; // cancelled before the anticipating ramp would start
     }
-    let (k, a_e) = (ex.k_s, ex.e_accel_mm_s2 / ex.e_per_mm);
+    let (k, a_e) = (ex.k_s, ex.head_accel_limit());
     let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
-    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, t_cancel_s.max(0.5 * k * a / a_e), ex)
+    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, t_cancel_s.max(ramp_lead(a, ex)), ex)
 }
 
 /// What one planner knows of one file, and its full-lookahead plan: shared by
@@ -323,10 +330,10 @@ impl Firmware {
 }
 
 /// Which junctions `pred`'s anchors call (anchor `i` calls junction `i + H`).
-fn calls(pred: &HorizonPrediction, threshold: f64, n: usize) -> Vec<bool> {
+fn calls(pred: &HorizonPrediction, n: usize) -> Vec<bool> {
     let mut called = vec![false; n];
     for (k, &i) in pred.anchors.iter().enumerate() {
-        if pred.corner_probability[k] >= threshold && i + pred.horizon < n {
+        if pred.corner_probability[k] >= pred.threshold && i + pred.horizon < n {
             called[i + pred.horizon] = true;
         }
     }
@@ -335,12 +342,12 @@ fn calls(pred: &HorizonPrediction, threshold: f64, n: usize) -> Vec<bool> {
 
 /// Late corners and width error of one file at one horizon, given a method's
 /// predictions at that horizon (anchor `i` calls a corner within `window_mm`
-/// of path from junction `i + H` when its probability reaches `threshold`).
+/// of path from junction `i + H` when its probability reaches `pred.threshold`).
 /// The width error with prediction is the total defect per sharp corner: the
 /// sharp corners' own plus what the false calls spoil.
-pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, threshold: f64, window_mm: f64, ex: &Extrusion) -> Downstream {
+pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
     let h = pred.horizon;
-    let called = calls(pred, threshold, j.len());
+    let called = calls(pred, j.len());
     let mut d = Downstream { method: method.to_string(), horizon: h, blocks: firmware.blocks, ..Default::default() };
     let (mut sum_p, mut sum_n) = (0.0, 0.0);
     for idx in firmware.callable(h) {
@@ -446,8 +453,8 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.5, 0.0, &ex);
-        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.5, 0.0, &ex);
+        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
+        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
         for d in [&small, &marlin] {
             assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
         }

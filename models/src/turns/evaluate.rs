@@ -144,7 +144,7 @@ pub fn downstream_of_methods(
         for (mi, p) in preds.iter().enumerate().filter(|(_, p)| p.corner_score.len() == raw.anchors.len()) {
             let threshold = if p.method == NETWORK { model.call_threshold(fw.blocks, raw.horizon)? } else { p.threshold };
             let call = HorizonPrediction { corner_probability: p.corner_score.clone(), threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() };
-            out.push((b, mi, downstream(&p.method, j, fw, &call, threshold, model.task.corner_window_mm, &ex)));
+            out.push((b, mi, downstream(&p.method, j, fw, &call, model.task.corner_window_mm, &ex)));
         }
     }
     Ok(out)
@@ -152,6 +152,11 @@ pub fn downstream_of_methods(
 
 /// Marlin's default planner buffer, blocks.
 pub const MARLIN_BLOCKS: usize = 16;
+
+/// Buffers of the downstream comparison (and of the call thresholds) unless
+/// told otherwise: Marlin's 16 and the smaller 4 and 2, where corners do come
+/// late on slicer output.
+pub const DEFAULT_BLOCKS: [usize; 3] = [MARLIN_BLOCKS, 4, 2];
 
 /// Score every file (its moves) at every horizon of the model, the downstream
 /// comparison at every buffer size of `blocks`; returns the pooled summary and

@@ -32,8 +32,7 @@ pub struct TurnSpec {
 }
 
 /// `[downstream]`: planner buffers (blocks) of the line-width comparison;
-/// default Marlin's 16 and the smaller buffers 4 and 2, where corners do come
-/// late on slicer output. 1–4 sizes within 1–64.
+/// default [`evaluate::DEFAULT_BLOCKS`]. 1–4 sizes within 1–64.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DownstreamSection {
@@ -42,7 +41,7 @@ pub struct DownstreamSection {
 
 impl Default for DownstreamSection {
     fn default() -> Self {
-        DownstreamSection { blocks: vec![evaluate::MARLIN_BLOCKS, 4, 2] }
+        DownstreamSection { blocks: evaluate::DEFAULT_BLOCKS.to_vec() }
     }
 }
 
