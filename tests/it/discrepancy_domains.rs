@@ -78,7 +78,7 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 }
 
 #[test]
-#[ignore = "issue #11 open: motion names 25 of 32, no false alarm; the 7 misses (and 8 not halved) are all Stribeck cases. With the twin now converged in stick-slip (h vs h/4: 0.01 um), stick-slip itself is sensitive: a relative change of 1e-6 to 1e-5 in F_s moves the trajectory by 7-15 um RMS when the slow move stick-slips (10 N at 0.5 or 2 mm/s, 4 N at 2 mm/s), so the output-error cost has no basin around the truth (grid start + refit: 3-10 um where the truth gives 1 um); faster slow moves (6 mm/s) give 6 wrong of 28. Needs a criterion for stick-slip effects that does not compare trajectories sample by sample, or a protocol that never sticks"]
+#[ignore = "issue #11 open: motion names 25 of 32, no false alarm; the 7 misses (and 8 not halved) are all Stribeck cases. With the twin now converged in stick-slip (h vs h/4: 0.01 um), stick-slip itself is sensitive: the output-error cost's basin around the truth is 1e-3 to 1e-2 wide in F_s and v_s and broken outside (a 1 % change of F_s moves the trajectory by 4-25 um RMS; at some points 1e-6 moves it by 7-15 um), so a grid start + refit stays at 3-10 um where the truth gives 1 um; faster slow moves (6 mm/s) give 6 wrong of 28. Needs a search that finds that basin (F_s from break-away lags, then a fine scan in v_s), a criterion for stick-slip effects that does not compare trajectories sample by sample, or a protocol that never sticks"]
 fn motion_hidden_set_meets_the_issue_criteria() {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
     let verdicts = par(&cases, |c| {
