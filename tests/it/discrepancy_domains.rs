@@ -7,6 +7,7 @@
 use fdmlab_models::discrepancy::extrusion::{self, hidden as ehidden};
 use fdmlab_models::discrepancy::motion::{self, hidden as mhidden};
 use fdmlab_models::discrepancy::{Report, SelectOptions};
+use fdmlab_models::parallel::par_map;
 
 /// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after.
 struct Verdict {
@@ -18,18 +19,6 @@ struct Verdict {
 
 fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
     Verdict { id: id.to_string(), truth, named: r.effects.iter().map(|e| e.name.clone()).collect(), rms: (r.before.rms, r.after.rms) }
-}
-
-/// Map `f` over `items` on two threads (the CI machine's cores), in order.
-fn par<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let mid = items.len() / 2;
-    std::thread::scope(|s| {
-        let a = s.spawn(|| items[..mid].iter().map(&f).collect::<Vec<R>>());
-        let b: Vec<R> = items[mid..].iter().map(&f).collect();
-        let mut out = a.join().expect("worker");
-        out.extend(b);
-        out
-    })
 }
 
 /// Check the issue's criteria over a set of verdicts; panics with the failures listed.
@@ -81,7 +70,7 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 #[ignore = "issue #11 open: motion names 25 of 32, no false alarm; the 7 misses (and 8 not halved) are all Stribeck cases. With the twin now converged in stick-slip (h vs h/4: 0.01 um), stick-slip itself is sensitive: the output-error cost's basin around the truth is 1e-3 to 1e-2 wide in F_s and v_s and broken outside (a 1 % change of F_s moves the trajectory by 4-25 um RMS; at some points 1e-6 moves it by 7-15 um), so a grid start + refit stays at 3-10 um where the truth gives 1 um; faster slow moves (6 mm/s) give 6 wrong of 28. Needs a search that finds that basin (F_s from break-away lags, then a fine scan in v_s), a criterion for stick-slip effects that does not compare trajectories sample by sample, or a protocol that never sticks"]
 fn motion_hidden_set_meets_the_issue_criteria() {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
-    let verdicts = par(&cases, |c| {
+    let verdicts = par_map(&cases, |c| {
         let out = motion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
         verdict(&c.answer.id, truth, &out.report)
@@ -92,7 +81,7 @@ fn motion_hidden_set_meets_the_issue_criteria() {
 #[test]
 fn extrusion_hidden_set_meets_the_issue_criteria() {
     let cases = ehidden::generate(&ehidden::HiddenConfig::small(3)).expect("generate");
-    let verdicts = par(&cases, |c| {
+    let verdicts = par_map(&cases, |c| {
         let out = extrusion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm3_s / c.answer.noise_sd_mm3_s)).collect();
         verdict(&c.answer.id, truth, &out.report)

@@ -486,7 +486,7 @@ mod tests {
         // sub-division (breakaway only at step starts, speed steps of v_s/16) moved it
         // by 14-29 µm RMS on that move.
         let (t, c) = super::super::hidden::protocol(0.01).expect("protocol");
-        let p = HbotParams { fc_bridge_n: 0.0, fc_cart_n: 0.0, t0_nm: 0.0, ..HbotParams::source_identified() };
+        let p = super::super::MotionModel::base(Axis::Y).params;
         let e = MotionEffects { stribeck_n: 10.0, stribeck_v_m_s: 1e-3, ..Default::default() };
         let plant = AxisPlant::new(&p, Axis::Y, &e).expect("plant");
         let cmd = |x: f64| interpolate(&t, &c, x) * 1e-3;
