@@ -67,7 +67,7 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 }
 
 #[test]
-#[ignore = "issue #11 open: motion names 25 of 32, no false alarm; the 7 misses (and 8 not halved) are all Stribeck cases. With the twin now converged in stick-slip (h vs h/4: 0.01 um), stick-slip itself is sensitive: the output-error cost's basin around the truth is 1e-3 to 1e-2 wide in F_s and v_s and broken outside (a 1 % change of F_s moves the trajectory by 4-25 um RMS; at some points 1e-6 moves it by 7-15 um), so a grid start + refit stays at 3-10 um where the truth gives 1 um; faster slow moves (6 mm/s) give 6 wrong of 28. Needs a search that finds that basin (F_s from break-away lags, then a fine scan in v_s), a criterion for stick-slip effects that does not compare trajectories sample by sample, or a protocol that never sticks"]
+#[ignore = "issue #11 open: motion names 27 of 32, no false alarm, 5 not halved, 2 of 4 pairs missed, every miss a Stribeck case (runs ~9 min). The twin now converges in stick-slip (the true model explains each case to the noise), but a 1 % error of F_s or v_s decorrelates a stick-slip move, so the refit must land inside a basin under 1 % wide; the grown-horizon fit (motion::identify_grown) gets near it from a far start but not reliably inside. See docs/discrepancy-domains.md"]
 fn motion_hidden_set_meets_the_issue_criteria() {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
     let verdicts = par_map(&cases, |c| {

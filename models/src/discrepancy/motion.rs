@@ -18,7 +18,7 @@ use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
 use crate::hbot::ident::Axis;
 use crate::hbot::HbotParams;
 use crate::ModelError;
-pub use axis::{AxisPlant, MotionEffects};
+pub use axis::{AxisPlant, MotionEffects, DEFAULT_STRIBECK_V_M_S};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -226,6 +226,11 @@ pub fn base_columns(model: &MotionModel, data: &MotionData, base_mm: &[f64]) -> 
 /// (in units of their scales), the offset projected out as the mean residual.
 /// Starts from `model` (whose effect values seed the search).
 pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]) -> Result<MotionModel, ModelError> {
+    identify_within(data, model, effects, simfit::PATIENCE)
+}
+
+/// [`identify`] with the search's patience (see [`simfit::fit_within`]).
+fn identify_within(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], patience: usize) -> Result<MotionModel, ModelError> {
     data.check()?;
     let j0 = model.params.j_m_kgm2;
     let mut scales = Vec::new();
@@ -236,7 +241,9 @@ pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]
         scales.push(s);
     }
     // The Stribeck velocity is re-identified with its level (log scale, last):
-    // a level at the wrong velocity is a Coulomb step, and loses to one.
+    // a level at the wrong velocity is a Coulomb step, and loses to one. A weak
+    // log-normal prior around the candidate's 1 mm/s (one noise σ of cost at a factor
+    // of 4) keeps it finite where the data do not yet fix it (short horizons).
     let vs0 = model.effects.stribeck_v_m_s;
     let free_vs = effects.contains(&MotionEffect::Stribeck);
     if free_vs {
@@ -256,18 +263,63 @@ pub fn identify(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]
         }
         m
     };
+    let prior = super::stats::noise_sigma(&data.meas_mm).max(1e-6) / 4f64.ln();
     let residual = |p: &[f64]| -> Option<Vec<f64>> {
         let m = build(p);
         let y = m.simulate_mm(data).ok()?;
         let offset = mean_difference(&data.meas_mm, &y);
-        Some(y.iter().zip(&data.meas_mm).map(|(y, z)| y + offset - z).collect())
+        let mut r: Vec<f64> = y.iter().zip(&data.meas_mm).map(|(y, z)| y + offset - z).collect();
+        if free_vs {
+            r.push(prior * (m.effects.stribeck_v_m_s / DEFAULT_STRIBECK_V_M_S).ln());
+        }
+        Some(r)
     };
     let steps = vec![1e-3; p0.len()];
-    let fit = simfit::fit(residual, &p0, &steps)?;
+    let fit = simfit::fit_within(residual, &p0, &steps, patience)?;
     let mut out = build(&fit.params);
     let y = out.simulate_mm(data)?;
     out.offset_mm = mean_difference(&data.meas_mm, &y);
     Ok(out)
+}
+
+/// Samples of the first horizon of [`identify_grown`], and its least extension.
+const GROW_FIRST: usize = 30;
+const GROW_STEP: usize = 10;
+/// A sample the model misses by more than this many noise σ ends the horizon it explains.
+const GROW_THRESHOLD: f64 = 3.0;
+/// Patience of the fits on the partial horizons: each only has to bring the estimate
+/// within the next horizon's basin; the fit on the whole record has the full patience.
+const GROW_PATIENCE: usize = 15;
+
+/// [`identify`], continued over a growing horizon when `effects` hold a Stribeck term.
+/// Stick–slip makes the output-error cost smooth only over a horizon short enough that a
+/// parameter error has not yet changed a stick: on a 1 s stick–slip move a 1 % error of
+/// F_s already decorrelates the trajectory, so a fit over the whole record stays where
+/// it starts. The fit starts on the first [`GROW_FIRST`] samples; the fitted model is
+/// then simulated over the whole record, the horizon extended to [`GROW_STEP`] samples
+/// past the first sample it misses by more than [`GROW_THRESHOLD`] σ (σ from
+/// `stats::noise_sigma`), and refitted from the last estimate, until it covers the record.
+pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]) -> Result<MotionModel, ModelError> {
+    let n = data.t_s.len();
+    if !effects.contains(&MotionEffect::Stribeck) || n <= GROW_FIRST {
+        return identify(data, model, effects);
+    }
+    let band = GROW_THRESHOLD * super::stats::noise_sigma(&data.meas_mm);
+    let mut m = *model;
+    let mut horizon = GROW_FIRST;
+    while horizon < n {
+        let part = MotionData {
+            axis: data.axis,
+            t_s: data.t_s[..horizon].to_vec(),
+            cmd_mm: data.cmd_mm[..horizon].to_vec(),
+            meas_mm: data.meas_mm[..horizon].to_vec(),
+        };
+        m = identify_within(&part, &m, effects, GROW_PATIENCE)?;
+        let y = m.predict_mm(data)?;
+        let missed = (horizon..n).find(|&k| (y[k] - data.meas_mm[k]).abs() > band).unwrap_or(n);
+        horizon = (missed + GROW_STEP).max(horizon + GROW_STEP).min(n);
+    }
+    identify(data, &m, effects)
 }
 
 /// Mean of `a − b`.
@@ -356,7 +408,7 @@ impl Domain for MotionDomain {
         e.set(&mut seeded.effects, &v);
         let mut effects = active_effects(model);
         effects.push(e);
-        identify(&self.data, &seeded, &effects)
+        identify_grown(&self.data, &seeded, &effects)
     }
     fn fitted_parameters(&self, effect: &str, columns: usize) -> usize {
         // The Stribeck velocity is fitted beside the level (see `identify`).
@@ -378,4 +430,33 @@ impl Domain for MotionDomain {
 /// The workflow on motion data, from `model` if given, else from the base model.
 pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &SelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
     super::run(&MotionDomain::new(data)?, model, opts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_grown_fit_finds_a_stick_slip_twin_that_the_whole_record_fit_misses() {
+        // A hidden-set case with a strong Stribeck excess (10 N): its 1.5 mm/s move
+        // stick-slips. From the base fit with the candidate's start (2 N at 1 mm/s), the
+        // fit over the whole record stays near its start; the grown fit must come to the
+        // twin's own F_s within 1 % and v_s within 5 % (the data are made at half the
+        // workflow's step, so not by the identical simulator). Not asserted: reaching the
+        // truth's residual, which needs a finer landing still (the basin in F_s and v_s
+        // is under 1 % wide; see docs/discrepancy-domains.md).
+        let config = hidden::HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 0, pairs: Vec::new(), ..hidden::HiddenConfig::small(3) };
+        let cases = hidden::generate(&config).expect("generate");
+        let case = cases.iter().find(|c| c.answer.id == "stribeck-m2-n1um-0").expect("case");
+        let (fs0, vs0) = (case.answer.effects[0].parameters["stribeck_n"], case.answer.effects[0].parameters["stribeck_v_m_s"]);
+        let d = &case.data;
+        let mut start = identify(d, &MotionModel::base(d.axis), &[]).expect("base");
+        start.effects.stribeck_n = 2.0;
+        let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.01 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
+        let whole = identify(d, &start, &[MotionEffect::Stribeck]).expect("fit");
+        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck]).expect("fit");
+        let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s);
+        assert!(!near(&whole), "whole-record fit: {}", show(&whole));
+        assert!(near(&grown), "grown fit: {}", show(&grown));
+    }
 }

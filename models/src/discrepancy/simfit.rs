@@ -63,9 +63,17 @@ impl<F: Fn(&[f64]) -> Option<Vec<f64>>> LeastSquaresProblem<f64, Dyn, Dyn> for P
     }
 }
 
+/// LM's patience in [`fit`]: it stops after `PATIENCE·(parameters + 1)` evaluations.
+pub const PATIENCE: usize = 60;
+
 /// Minimise ‖r(p)‖² from `p0`; `steps[j]` is the finite-difference step of p_j and
 /// `r` returns `None` where the model cannot be simulated (LM then shrinks its step).
 pub fn fit(residuals: impl Fn(&[f64]) -> Option<Vec<f64>>, p0: &[f64], steps: &[f64]) -> Result<SimFit, ModelError> {
+    fit_within(residuals, p0, steps, PATIENCE)
+}
+
+/// [`fit`] with LM stopping after `patience·(parameters + 1)` evaluations.
+pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>>, p0: &[f64], steps: &[f64], patience: usize) -> Result<SimFit, ModelError> {
     if steps.len() != p0.len() || steps.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
         return Err(ModelError::Shape(format!("{} finite-difference steps for {} parameters", steps.len(), p0.len())));
     }
@@ -77,7 +85,7 @@ pub fn fit(residuals: impl Fn(&[f64]) -> Option<Vec<f64>>, p0: &[f64], steps: &[
     if p0.is_empty() {
         return Ok(SimFit { params: Vec::new(), sse: r0.norm_squared(), evaluations: 1 });
     }
-    let (problem, report) = LevenbergMarquardt::new().with_patience(60).minimize(problem);
+    let (problem, report) = LevenbergMarquardt::new().with_patience(patience).minimize(problem);
     let Some(r) = problem.r.as_ref() else {
         return Err(ModelError::Numerical(format!("identification by simulation failed: {:?}", report.termination)));
     };
