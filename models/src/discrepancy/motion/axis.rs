@@ -291,8 +291,10 @@ impl AxisPlant {
     /// Length of the next sub-step from `t` with `rest` left of the step: all of it,
     /// unless a coordinate with a Stribeck excess slides within [`STRIBECK_ZONE`]·v_s of standstill
     /// (then short enough that its speed changes by at most [`STRIBECK_RESOLUTION`]·v_s
-    /// at the present acceleration) or is stuck and breaks away within `rest` (then up
-    /// to the moment its force reaches the static level, interpolated linearly).
+    /// at the present acceleration), decelerates towards that zone (then up to its edge,
+    /// extrapolated at the present acceleration) or is stuck and breaks away within
+    /// `rest` (then up to the moment its force reaches the static level, interpolated
+    /// linearly).
     #[allow(clippy::too_many_arguments)]
     fn substep(&self, x: &[f64; 2], v: &[f64; 2], modes: &[Mode; 2], play: f64, t: f64, rest: f64, cmd_m: &dyn Fn(f64) -> f64) -> f64 {
         let mut dt = rest;
