@@ -18,7 +18,8 @@ use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
 use crate::hbot::ident::Axis;
 use crate::hbot::HbotParams;
 use crate::ModelError;
-pub use axis::{AxisPlant, MotionEffects, DEFAULT_STRIBECK_V_M_S};
+use axis::DEFAULT_STRIBECK_V_M_S;
+pub use axis::{AxisPlant, MotionEffects};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
