@@ -11,6 +11,7 @@ use std::collections::{BinaryHeap, HashMap};
 
 use serde::{Deserialize, Serialize};
 
+use super::features::heading_diff;
 use super::Junction;
 use crate::ModelError;
 
@@ -132,11 +133,6 @@ impl Default for PreviousLayer {
     fn default() -> Self {
         PreviousLayer { heading_tol_deg: 30.0, max_dist_mm: 3.0 }
     }
-}
-
-fn heading_diff(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    d.min(360.0 - d)
 }
 
 /// Grid of junction indices of one layer, for nearest-neighbour search.

@@ -112,7 +112,8 @@ fn cell(x: f64, y: f64) -> (i64, i64) {
     ((x / MATCH_RADIUS_MM).floor() as i64, (y / MATCH_RADIUS_MM).floor() as i64)
 }
 
-fn heading_diff(a: f64, b: f64) -> f64 {
+/// Absolute difference of two headings (degrees), in [0, 180].
+pub(crate) fn heading_diff(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(360.0);
     d.min(360.0 - d)
 }
