@@ -67,7 +67,7 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 }
 
 #[test]
-#[ignore = "issue #11 open: motion names 27 of 32, no false alarm, 5 not halved, 2 of 4 pairs missed, every miss a Stribeck case (runs ~9 min). The twin now converges in stick-slip (the true model explains each case to the noise), but a 1 % error of F_s or v_s decorrelates a stick-slip move, so the refit must land inside a basin under 1 % wide; the grown-horizon fit (motion::identify_grown) gets near it from a far start but not reliably inside. See docs/discrepancy-domains.md"]
+#[ignore = "issue #11 open: motion names 30 of 32, no false alarm, 2 not halved, 2 of 4 pairs missed (runs ~12 min); both misses are the Stribeck + belt-compliance pair, named Stribeck alone: around a stick-slipping model the compliance column is uninformative, so nothing passes the second round. Single Stribeck cases reach the noise (grown horizon with nested grid scans, motion::identify_grown; Coulomb and Stribeck refitted as nested rivals). See docs/discrepancy-domains.md"]
 fn motion_hidden_set_meets_the_issue_criteria() {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
     let verdicts = par_map(&cases, |c| {
@@ -89,25 +89,54 @@ fn extrusion_hidden_set_meets_the_issue_criteria() {
     check_criteria("extrusion", &verdicts);
 }
 
-#[test]
-fn the_motion_command_names_hidden_coulomb_friction_and_halves_the_gap() {
-    // The CLI path of the motion domain on one hidden case (9 N of bearing Coulomb
-    // friction, 1 µm noise), its answer kept by the generator.
+/// The motion command on one hidden case (1 µm noise, answers kept by the generator):
+/// its JSON output, the case's answer and the report folder's existence.
+fn motion_command_on(id: &str) -> (serde_json::Value, mhidden::HiddenAnswer) {
     let config = mhidden::HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 0, pairs: Vec::new(), ..mhidden::HiddenConfig::small(3) };
     let cases = mhidden::generate(&config).expect("generate");
-    let case = cases.iter().find(|c| c.answer.id == "coulomb_friction-m2-n1um-0").expect("case");
+    let case = cases.iter().find(|c| c.answer.id == id).expect("case");
     let sb = crate::common::Sandbox::new();
     sb.write("axis.csv", &fdmlab_datasets::discrepancy::motion::to_csv(&case.data));
     let v = sb.json(&["discrepancy", "--domain", "motion", "--data", "axis.csv", "--report", "rep"]);
-    let names: Vec<&str> = v["effects"].as_array().expect("effects").iter().map(|e| e["name"].as_str().expect("name")).collect();
-    assert_eq!(names, ["coulomb_friction"], "{v}");
-    // The level is seen as a lag of F_c / k_belt ≈ 11 µm over ~150 moving samples read
-    // with 1 µm noise: known to ~1 %; 3 % allows for J_M traded against it.
-    let truth = case.answer.effects[0].parameters["coulomb_n"];
+    assert!(sb.path().join("rep").read_dir().expect("report folder").next().is_some());
+    (v, case.answer.clone())
+}
+
+fn named(v: &serde_json::Value) -> Vec<&str> {
+    v["effects"].as_array().expect("effects").iter().map(|e| e["name"].as_str().expect("name")).collect()
+}
+
+fn rms_before_after(v: &serde_json::Value) -> (f64, f64) {
+    (v["before"]["rms"].as_f64().expect("before"), v["after"]["rms"].as_f64().expect("after"))
+}
+
+#[test]
+fn the_motion_command_names_hidden_coulomb_friction_and_halves_the_gap() {
+    let (v, answer) = motion_command_on("coulomb_friction-m2-n1um-0");
+    assert_eq!(named(&v), ["coulomb_friction"], "{v}");
+    // The level (9 N) is seen as a lag of F_c / k_belt ≈ 11 µm over ~150 moving samples
+    // read with 1 µm noise: known to ~1 %; 3 % allows for J_M traded against it.
+    let truth = answer.effects[0].parameters["coulomb_n"];
     let fitted = v["effects"][0]["parameters"]["coulomb_n"].as_f64().expect("coulomb_n");
     assert!((fitted / truth - 1.0).abs() < 0.03, "{fitted} N vs {truth} N");
     // What is left is the sensor's noise (1 µm, plus 1 µm resolution: ≤ 1.5 µm), and at least halved.
-    let (before, after) = (v["before"]["rms"].as_f64().expect("before"), v["after"]["rms"].as_f64().expect("after"));
+    let (before, after) = rms_before_after(&v);
     assert!(after < 0.5 * before && after < 1.5e-3, "rms {before} -> {after} mm");
-    assert!(sb.path().join("rep").read_dir().expect("report folder").next().is_some());
+}
+
+#[test]
+fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() {
+    // 10 N of Stribeck excess: the slow move stick-slips, which the Stribeck column
+    // linearised at its 2 N probe cannot show; Coulomb friction ranks first and the
+    // Stribeck term is refitted beside it as its nested rival (`Domain::rivals`).
+    let (v, answer) = motion_command_on("stribeck-m2-n1um-0");
+    assert_eq!(named(&v), ["stribeck"], "{v}");
+    let p = &answer.effects[0].parameters;
+    let fitted = &v["effects"][0]["parameters"];
+    let rel = |k: &str| fitted[k].as_f64().expect(k) / p[k] - 1.0;
+    assert!(rel("stribeck_n").abs() < 0.005 && rel("stribeck_v_m_s").abs() < 0.05, "{fitted} vs {p:?}");
+    // The truth's residual: 1 µm noise and 1 µm resolution (1.04 µm), plus ≤ 0.2 µm
+    // for the data made at half the workflow's step.
+    let (before, after) = rms_before_after(&v);
+    assert!(after < 1.25e-3 && after < 0.5 * before, "rms {before} -> {after} mm");
 }

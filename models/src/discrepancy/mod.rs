@@ -24,7 +24,9 @@
 //!   with the effect switched on at a small magnitude;
 //! - `augment`: the model with one effect added, re-identified by simulation
 //!   (the linear coefficients of the selection are the starting guess);
-//! - `effect_parameters`: the named parameters of an effect in a model.
+//! - `effect_parameters`: the named parameters of an effect in a model;
+//! - optionally `fitted_parameters` (a refit that frees more than its columns)
+//!   and `rivals` (nested effects refitted beside one whenever it contends).
 //!
 //! [`run`] does the rest, identically for every domain: residual, noise band
 //! and windows, whiteness and cross-correlations, one [`select::select`]
@@ -80,6 +82,11 @@ pub trait Domain {
     fn augment(&self, model: &Self::Model, effect: &Ranked) -> Result<Self::Model, ModelError>;
     /// Named parameters of `effect` in `model` (units in the names).
     fn effect_parameters(&self, model: &Self::Model, effect: &str) -> BTreeMap<String, f64>;
+    /// Effects nested with `effect` (one is a limit of the other) whose linearisations
+    /// can differ widely: refitted beside it whenever it contends, whatever their ERR.
+    fn rivals(&self, _effect: &str) -> &'static [&'static str] {
+        &[]
+    }
 }
 
 /// Fit, RMS and whiteness of one model on the data.
@@ -256,7 +263,10 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             // and the nonlinear refit's BIC decides.
             let bar = opts.alpha / sel.ranking.len().max(1) as f64;
             let contenders: Vec<&Ranked> = std::iter::once(best)
-                .chain(sel.ranking.iter().filter(|r| r.name != best.name && r.err >= RIVAL_ERR * best.err && r.p_value < bar && r.delta_bic < 0.0))
+                .chain(sel.ranking.iter().filter(|r| {
+                    r.name != best.name
+                        && (domain.rivals(&best.name).contains(&r.name.as_str()) || (r.err >= RIVAL_ERR * best.err && r.p_value < bar && r.delta_bic < 0.0))
+                }))
                 .collect();
             let mut fits: Vec<(&Ranked, D::Model, Vec<f64>, f64)> = contenders.iter().filter_map(|r| try_add(r).map(|(m, r1, d)| (*r, m, r1, d))).collect();
             fits.sort_by(|a, b| a.3.total_cmp(&b.3));

@@ -300,27 +300,99 @@ const GROW_PATIENCE: usize = 15;
 /// then simulated over the whole record, the horizon extended to [`GROW_STEP`] samples
 /// past the first sample it misses by more than [`GROW_THRESHOLD`] σ (σ from
 /// `stats::noise_sigma`), and refitted from the last estimate, until it covers the record.
+/// Where a fit still misses a sample of its own horizon (a new stick it cannot reach by
+/// its local steps), the Stribeck level and velocity are scanned on nested grids
+/// ([`scan_stribeck`]) and the fit restarted from the best point, kept if better.
 pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]) -> Result<MotionModel, ModelError> {
     let n = data.t_s.len();
     if !effects.contains(&MotionEffect::Stribeck) || n <= GROW_FIRST {
         return identify(data, model, effects);
     }
     let band = GROW_THRESHOLD * super::stats::noise_sigma(&data.meas_mm);
+    let first = grow(data, model, effects, band)?;
+    let y = first.predict_mm(data)?;
+    if y.iter().zip(&data.meas_mm).all(|(a, b)| (a - b).abs() <= band) {
+        return Ok(first);
+    }
+    // Still missing samples: a second pass from the first's estimate, kept if better.
+    let second = grow(data, &first, effects, band)?;
+    Ok(if output_sse(data, &second)?.0 < output_sse(data, &first)?.0 { second } else { first })
+}
+
+/// One pass of [`identify_grown`] with the miss band `band` (mm).
+fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: f64) -> Result<MotionModel, ModelError> {
+    let n = data.t_s.len();
     let mut m = *model;
     let mut horizon = GROW_FIRST;
-    while horizon < n {
+    loop {
         let part = MotionData {
             axis: data.axis,
             t_s: data.t_s[..horizon].to_vec(),
             cmd_mm: data.cmd_mm[..horizon].to_vec(),
             meas_mm: data.meas_mm[..horizon].to_vec(),
         };
-        m = identify_within(&part, &m, effects, GROW_PATIENCE)?;
+        let patience = if horizon == n { simfit::PATIENCE } else { GROW_PATIENCE };
+        m = identify_within(&part, &m, effects, patience)?;
+        let y = m.predict_mm(data)?;
+        if y[..horizon].iter().zip(&part.meas_mm).any(|(a, b)| (a - b).abs() > band) {
+            // The fit leaves samples it should explain: it is outside the horizon's
+            // basin. Scan the Stribeck parameters, refit from the best, keep it if better.
+            let (sse, _) = output_sse(&part, &m)?;
+            let (_, scanned) = scan_stribeck(&part, &m)?;
+            let refit = identify_within(&part, &scanned, effects, patience)?;
+            if output_sse(&part, &refit)?.0 < sse {
+                m = refit;
+            }
+        }
+        if horizon == n {
+            return Ok(m);
+        }
         let y = m.predict_mm(data)?;
         let missed = (horizon..n).find(|&k| (y[k] - data.meas_mm[k]).abs() > band).unwrap_or(n);
         horizon = (missed + GROW_STEP).max(horizon + GROW_STEP).min(n);
     }
-    identify(data, &m, effects)
+}
+
+/// Sum of squared output errors of `model` on `data`, the offset projected out, and
+/// the model with that offset.
+fn output_sse(data: &MotionData, model: &MotionModel) -> Result<(f64, MotionModel), ModelError> {
+    let y = model.simulate_mm(data)?;
+    let offset = mean_difference(&data.meas_mm, &y);
+    let mut m = *model;
+    m.offset_mm = offset;
+    Ok((y.iter().zip(&data.meas_mm).map(|(y, z)| (y + offset - z).powi(2)).sum(), m))
+}
+
+/// Grids of [`scan_stribeck`]: (level step, velocity step) as powers of two, each
+/// scanned over ±[`SCAN_STEPS`] steps around the best of the one before (so each spans
+/// the step before it): ×2^(±1/2) in level and ×2^(±2) in velocity first, ±0.07 % and
+/// ±0.27 % last.
+const SCAN_GRIDS: [(f64, f64); 4] = [(1.0 / 8.0, 1.0 / 2.0), (1.0 / 64.0, 1.0 / 16.0), (1.0 / 512.0, 1.0 / 128.0), (1.0 / 4096.0, 1.0 / 1024.0)];
+const SCAN_STEPS: i32 = 4;
+
+/// The best of [`SCAN_GRIDS`] over the Stribeck level and velocity around `model`, by
+/// the output error on `data` (J_M and every other parameter held).
+fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<(f64, MotionModel), ModelError> {
+    let mut start = *model;
+    if start.effects.stribeck_n <= 0.0 {
+        start.effects.stribeck_n = MotionEffect::Stribeck.scales(model)[0];
+    }
+    let mut best = output_sse(data, &start)?;
+    for (ds, dv) in SCAN_GRIDS {
+        let centre = best.1;
+        for i in -SCAN_STEPS..=SCAN_STEPS {
+            for j in -SCAN_STEPS..=SCAN_STEPS {
+                let mut m = centre;
+                m.effects.stribeck_n = centre.effects.stribeck_n * 2f64.powf(i as f64 * ds);
+                m.effects.stribeck_v_m_s = centre.effects.stribeck_v_m_s * 2f64.powf(j as f64 * dv);
+                let (sse, m) = output_sse(data, &m)?;
+                if sse < best.0 {
+                    best = (sse, m);
+                }
+            }
+        }
+    }
+    Ok(best)
 }
 
 /// Mean of `a − b`.
@@ -411,6 +483,15 @@ impl Domain for MotionDomain {
         effects.push(e);
         identify_grown(&self.data, &seeded, &effects)
     }
+    fn rivals(&self, effect: &str) -> &'static [&'static str] {
+        // A Stribeck excess at a high velocity is a Coulomb level; linearised at the
+        // candidate's small probe it cannot show the stick-slip a large one makes.
+        match MotionEffect::from_name(effect) {
+            Some(MotionEffect::CoulombFriction) => &["stribeck"],
+            Some(MotionEffect::Stribeck) => &["coulomb_friction"],
+            _ => &[],
+        }
+    }
     fn fitted_parameters(&self, effect: &str, columns: usize) -> usize {
         // The Stribeck velocity is fitted beside the level (see `identify`).
         columns + usize::from(effect == MotionEffect::Stribeck.name())
@@ -441,11 +522,10 @@ mod tests {
     fn the_grown_fit_finds_a_stick_slip_twin_that_the_whole_record_fit_misses() {
         // A hidden-set case with a strong Stribeck excess (10 N): its 1.5 mm/s move
         // stick-slips. From the base fit with the candidate's start (2 N at 1 mm/s), the
-        // fit over the whole record stays near its start; the grown fit must come to the
-        // twin's own F_s within 1 % and v_s within 5 % (the data are made at half the
-        // workflow's step, so not by the identical simulator). Not asserted: reaching the
-        // truth's residual, which needs a finer landing still (the basin in F_s and v_s
-        // is under 1 % wide; see docs/discrepancy-domains.md).
+        // fit over the whole record stays near its start; the grown fit must reach the
+        // truth's residual: the sensor's 1 µm noise and 1 µm resolution (0.29 µm RMS),
+        // 1.04 µm together, plus at most 0.2 µm for the data being made at half the
+        // workflow's step (axis::tests) — 1.25 µm — with F_s within 0.5 % and v_s within 5 %.
         let config = hidden::HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 0, pairs: Vec::new(), ..hidden::HiddenConfig::small(3) };
         let cases = hidden::generate(&config).expect("generate");
         let case = cases.iter().find(|c| c.answer.id == "stribeck-m2-n1um-0").expect("case");
@@ -453,11 +533,12 @@ mod tests {
         let d = &case.data;
         let mut start = identify(d, &MotionModel::base(d.axis), &[]).expect("base");
         start.effects.stribeck_n = 2.0;
-        let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.01 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
+        let rms_um = |m: &MotionModel| crate::metrics::rms(&d.meas_mm, &m.predict_mm(d).expect("simulate")) * 1e3;
+        let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.005 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
         let whole = identify(d, &start, &[MotionEffect::Stribeck]).expect("fit");
         let grown = identify_grown(d, &start, &[MotionEffect::Stribeck]).expect("fit");
-        let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s);
-        assert!(!near(&whole), "whole-record fit: {}", show(&whole));
-        assert!(near(&grown), "grown fit: {}", show(&grown));
+        let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s, {} µm RMS (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s, rms_um(m));
+        assert!(!near(&whole) && rms_um(&whole) > 2.0, "whole-record fit: {}", show(&whole));
+        assert!(near(&grown) && rms_um(&grown) < 1.25, "grown fit: {}", show(&grown));
     }
 }
