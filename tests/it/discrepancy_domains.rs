@@ -1,7 +1,8 @@
 //! The discrepancy workflow's motion and extrusion domains on their hidden-effect
 //! sets, and the motion command on one case. Criteria from issue #11: the right
-//! effects named in ≥ 95 % of the cases whose contribution exceeds 3× the noise RMS; an effect named on effect-free data
-//! in ≤ 5 %; residual RMS down ≥ 50 % after the addition; two hidden effects → both
+//! effects named in ≥ 95 % of the cases whose contribution exceeds 3× the noise
+//! RMS; an effect named on effect-free data in ≤ 5 %; residual RMS down ≥ 50 %
+//! after the addition; two hidden effects → both
 //! named. The truth is the generator's answer, never the workflow's output.
 
 use fdmlab_models::discrepancy::extrusion::{self, hidden as ehidden};

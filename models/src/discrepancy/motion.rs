@@ -267,9 +267,7 @@ fn identify_within(data: &MotionData, model: &MotionModel, effects: &[MotionEffe
     let prior = super::stats::noise_sigma(&data.meas_mm).max(1e-6) / 4f64.ln();
     let residual = |p: &[f64]| -> Option<Vec<f64>> {
         let m = build(p);
-        let y = m.simulate_mm(data).ok()?;
-        let offset = mean_difference(&data.meas_mm, &y);
-        let mut r: Vec<f64> = y.iter().zip(&data.meas_mm).map(|(y, z)| y + offset - z).collect();
+        let mut r = output_error(data, &m).ok()?;
         if free_vs {
             r.push(prior * (m.effects.stribeck_v_m_s / DEFAULT_STRIBECK_V_M_S).ln());
         }
@@ -316,7 +314,7 @@ pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionE
     }
     // Still missing samples: a second pass from the first's estimate, kept if better.
     let second = grow(data, &first, effects, band)?;
-    Ok(if output_sse(data, &second)?.0 < output_sse(data, &first)?.0 { second } else { first })
+    Ok(if output_sse(data, &second)? < output_sse(data, &first)? { second } else { first })
 }
 
 /// One pass of [`identify_grown`] with the miss band `band` (mm).
@@ -333,34 +331,35 @@ fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: 
         };
         let patience = if horizon == n { simfit::PATIENCE } else { GROW_PATIENCE };
         m = identify_within(&part, &m, effects, patience)?;
-        let y = m.predict_mm(data)?;
+        let mut y = m.predict_mm(data)?;
         if y[..horizon].iter().zip(&part.meas_mm).any(|(a, b)| (a - b).abs() > band) {
             // The fit leaves samples it should explain: it is outside the horizon's
             // basin. Scan the Stribeck parameters, refit from the best, keep it if better.
-            let (sse, _) = output_sse(&part, &m)?;
-            let (_, scanned) = scan_stribeck(&part, &m)?;
-            let refit = identify_within(&part, &scanned, effects, patience)?;
-            if output_sse(&part, &refit)?.0 < sse {
+            let refit = identify_within(&part, &scan_stribeck(&part, &m)?, effects, patience)?;
+            if output_sse(&part, &refit)? < output_sse(&part, &m)? {
                 m = refit;
+                y = m.predict_mm(data)?;
             }
         }
         if horizon == n {
             return Ok(m);
         }
-        let y = m.predict_mm(data)?;
         let missed = (horizon..n).find(|&k| (y[k] - data.meas_mm[k]).abs() > band).unwrap_or(n);
         horizon = (missed + GROW_STEP).max(horizon + GROW_STEP).min(n);
     }
 }
 
-/// Sum of squared output errors of `model` on `data`, the offset projected out, and
-/// the model with that offset.
-fn output_sse(data: &MotionData, model: &MotionModel) -> Result<(f64, MotionModel), ModelError> {
+/// Simulated minus measured output (mm) of `model` on `data`, the offset projected
+/// out (the mean difference): the residual every motion fit minimises.
+fn output_error(data: &MotionData, model: &MotionModel) -> Result<Vec<f64>, ModelError> {
     let y = model.simulate_mm(data)?;
     let offset = mean_difference(&data.meas_mm, &y);
-    let mut m = *model;
-    m.offset_mm = offset;
-    Ok((y.iter().zip(&data.meas_mm).map(|(y, z)| (y + offset - z).powi(2)).sum(), m))
+    Ok(y.iter().zip(&data.meas_mm).map(|(y, z)| y + offset - z).collect())
+}
+
+/// Sum of squares of [`output_error`].
+fn output_sse(data: &MotionData, model: &MotionModel) -> Result<f64, ModelError> {
+    Ok(output_error(data, model)?.iter().map(|r| r * r).sum())
 }
 
 /// Grids of [`scan_stribeck`]: (level step, velocity step) as powers of two, each
@@ -372,12 +371,12 @@ const SCAN_STEPS: i32 = 4;
 
 /// The best of [`SCAN_GRIDS`] over the Stribeck level and velocity around `model`, by
 /// the output error on `data` (J_M and every other parameter held).
-fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<(f64, MotionModel), ModelError> {
+fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<MotionModel, ModelError> {
     let mut start = *model;
     if start.effects.stribeck_n <= 0.0 {
         start.effects.stribeck_n = MotionEffect::Stribeck.scales(model)[0];
     }
-    let mut best = output_sse(data, &start)?;
+    let mut best = (output_sse(data, &start)?, start);
     for (ds, dv) in SCAN_GRIDS {
         let centre = best.1;
         for i in -SCAN_STEPS..=SCAN_STEPS {
@@ -385,14 +384,14 @@ fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<(f64, MotionM
                 let mut m = centre;
                 m.effects.stribeck_n = centre.effects.stribeck_n * 2f64.powf(i as f64 * ds);
                 m.effects.stribeck_v_m_s = centre.effects.stribeck_v_m_s * 2f64.powf(j as f64 * dv);
-                let (sse, m) = output_sse(data, &m)?;
+                let sse = output_sse(data, &m)?;
                 if sse < best.0 {
                     best = (sse, m);
                 }
             }
         }
     }
-    Ok(best)
+    Ok(best.1)
 }
 
 /// Mean of `a − b`.
