@@ -67,8 +67,10 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
     assert!(pairs_missed.is_empty(), "{report}");
 }
 
+/// The slowest test (~12 min in the debug test profile on 2 cores): the stick-slip
+/// refits (grown horizon, nested grid scans) and the joins of a masked belt compliance.
+/// See docs/discrepancy-domains.md.
 #[test]
-#[ignore = "issue #11 open: motion names 30 of 32, no false alarm, 2 not halved, 2 of 4 pairs missed (runs ~12 min); both misses are the Stribeck + belt-compliance pair, named Stribeck alone: around a stick-slipping model the compliance column is uninformative, so nothing passes the second round. Single Stribeck cases reach the noise (grown horizon with nested grid scans, motion::identify_grown; Coulomb and Stribeck refitted as nested rivals). See docs/discrepancy-domains.md"]
 fn motion_hidden_set_meets_the_issue_criteria() {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
     let verdicts = par_map(&cases, |c| {
@@ -126,6 +128,7 @@ fn the_motion_command_names_hidden_coulomb_friction_and_halves_the_gap() {
 }
 
 #[test]
+#[ignore = "~2.5 min; its case (stribeck-m2-n1um-0) is named alone through the library in motion_hidden_set_meets_the_issue_criteria, and the command path is tested on the Coulomb case: run with --ignored when the command's motion path changes"]
 fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() {
     // 10 N of Stribeck excess: the slow move stick-slips, which the Stribeck column
     // linearised at its 2 N probe cannot show; Coulomb friction ranks first and the

@@ -25,8 +25,9 @@
 //! - `augment`: the model with one effect added, re-identified by simulation
 //!   (the linear coefficients of the selection are the starting guess);
 //! - `effect_parameters`: the named parameters of an effect in a model;
-//! - optionally `fitted_parameters` (a refit that frees more than its columns)
-//!   and `rivals` (nested effects refitted beside one whenever it contends).
+//! - optionally `fitted_parameters` (a refit that frees more than its columns),
+//!   `rivals` (nested effects refitted beside one whenever it contends) and
+//!   `join` (an effect masked by a named one, refitted jointly with it).
 //!
 //! [`run`] does the rest, identically for every domain: residual, noise band
 //! and windows, whiteness and cross-correlations, one [`select::select`]
@@ -35,9 +36,10 @@
 //! re-identification, not only in the linearisation), resolution of
 //! first-order-collinear groups by the nonlinear refit when the data can tell
 //! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
-//! else they are reported `ambiguous`; finally everything is recomputed on
-//! the augmented model. [`Report`] serialises to exactly the JSON of the
-//! command's stdout.
+//! else they are reported `ambiguous`; when no further effect passes but the
+//! residual still leaves the noise band, one joint refit of a masked effect
+//! (`join`); finally everything is recomputed on the augmented model.
+//! [`Report`] serialises to exactly the JSON of the command's stdout.
 
 pub mod extrusion;
 pub mod hidden;
@@ -87,6 +89,13 @@ pub trait Domain {
     fn rivals(&self, _effect: &str) -> &'static [&'static str] {
         &[]
     }
+    /// `current` (the effects named so far) plus `effect`, seeded from the starting
+    /// model `start` refitted with `effect` alone, and re-identified: for an effect
+    /// masked by a named one, whose column around the named one's fit is flat. `None`
+    /// where the domain has no such refit (the default), declines it, or it fails.
+    fn join(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked) -> Option<Self::Model> {
+        None
+    }
 }
 
 /// Fit, RMS and whiteness of one model on the data.
@@ -110,7 +119,8 @@ pub struct Effect {
     pub name: String,
     /// Why it was named: `err`, `p_value`, `delta_bic` of the selection round
     /// and `delta_bic_refit`, `rms_before`, `rms_after` of the nonlinear refit
-    /// (plus `delta_bic_vs_rival` when it was told apart from a collinear rival).
+    /// (plus `delta_bic_vs_rival` when it was told apart from a collinear rival, and
+    /// `joined` = 1 when it was named by a joint refit, [`Domain::join`]).
     #[serde(with = "nonfinite::map")]
     pub evidence: BTreeMap<String, f64>,
     /// Its identified parameters (units in the names).
@@ -246,16 +256,6 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             let d = delta_bic(&r_cur, &r1, width(&r.name));
             (d < 0.0).then_some((m, r1, d))
         };
-        let evidence = |r: &Ranked, r1: &[f64], d: f64| -> BTreeMap<String, f64> {
-            BTreeMap::from([
-                ("err".to_string(), r.err),
-                ("p_value".to_string(), r.p_value),
-                ("delta_bic".to_string(), r.delta_bic),
-                ("delta_bic_refit".to_string(), d),
-                ("rms_before".to_string(), stats::rms(&r_cur)),
-                ("rms_after".to_string(), stats::rms(r1)),
-            ])
-        };
         if let Some(best) = sel.chosen.first() {
             // ERR ranks effects linearised at a small probe; for effects nonlinear in
             // their parameter (a lag and a dead time look alike there) the runner-ups
@@ -273,7 +273,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             let gap = fits.get(1).map(|b| b.3 - fits[0].3);
             match fits.into_iter().next() {
                 Some((r, m, r1, d)) => {
-                    let mut ev = evidence(r, &r1, d);
+                    let mut ev = evidence(r, &r_cur, &r1, d);
                     if let Some(gap) = gap {
                         ev.insert("delta_bic_vs_rival".into(), gap);
                     }
@@ -297,7 +297,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             match decisive {
                 Some(gap) if gap > DECISIVE_BIC && !fits.is_empty() => {
                     let (r, m, r1, d) = fits.swap_remove(0);
-                    let mut ev = evidence(r, &r1, d);
+                    let mut ev = evidence(r, &r_cur, &r1, d);
                     ev.insert("delta_bic_vs_rival".into(), gap);
                     effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name) });
                     current = m;
@@ -308,6 +308,36 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             }
         } else {
             break;
+        }
+    }
+    // Effects named, yet the residual still leaves the noise band and no further
+    // effect passed: one may be masked by a named one (its column around the named
+    // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
+    // beside them already) is refitted alone on the starting model and joined to the
+    // named ones; the best join is kept if its BIC falls.
+    if !effects.is_empty() && effects.len() < opts.max_effects && !stats::windows(&r_cur, sigma, &time_s).is_empty() {
+        let mut joins: Vec<(&Ranked, D::Model, Vec<f64>, f64)> = ranking
+            .iter()
+            .flatten()
+            .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
+            .filter_map(|r| {
+                let m = domain.join(&current, &start, r)?;
+                let sim = domain.simulate(&m);
+                if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
+                    return None;
+                }
+                let r1 = residual(&y, &sim);
+                let d = delta_bic(&r_cur, &r1, domain.fitted_parameters(&r.name, r.coefficients.len()));
+                (d < 0.0).then_some((r, m, r1, d))
+            })
+            .collect();
+        joins.sort_by(|a, b| a.3.total_cmp(&b.3));
+        if let Some((r, m, r1, d)) = joins.into_iter().next() {
+            let mut ev = evidence(r, &r_cur, &r1, d);
+            ev.insert("joined".into(), 1.0);
+            effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new() });
+            current = m;
+            r_cur = r1;
         }
     }
     // Every parameter was re-identified with each later effect: report the final values.
@@ -331,6 +361,19 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
         model_after: current,
         report,
     })
+}
+
+/// Evidence of an effect: its selection round (`r`) and its nonlinear refit, which
+/// took the residual from `r0` to `r1` with BIC change `d`.
+fn evidence(r: &Ranked, r0: &[f64], r1: &[f64], d: f64) -> BTreeMap<String, f64> {
+    BTreeMap::from([
+        ("err".to_string(), r.err),
+        ("p_value".to_string(), r.p_value),
+        ("delta_bic".to_string(), r.delta_bic),
+        ("delta_bic_refit".to_string(), d),
+        ("rms_before".to_string(), stats::rms(r0)),
+        ("rms_after".to_string(), stats::rms(r1)),
+    ])
 }
 
 fn sel_member<'a>(sel: &'a Selection, name: &str) -> Option<&'a Ranked> {
