@@ -246,16 +246,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
         }
         let width = |name: &str| domain.fitted_parameters(name, candidates.iter().find(|c| c.name == name).map_or(1, |c| c.columns.len()));
         // Re-identify with one effect; keep it only if the nonlinear refit confirms it.
-        let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> {
-            let m = domain.augment(&current, r).ok()?;
-            let sim = domain.simulate(&m);
-            if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
-                return None;
-            }
-            let r1 = residual(&y, &sim);
-            let d = delta_bic(&r_cur, &r1, width(&r.name));
-            (d < 0.0).then_some((m, r1, d))
-        };
+        let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> { confirmed(domain, &y, &r_cur, domain.augment(&current, r).ok()?, width(&r.name)) };
         if let Some(best) = sel.chosen.first() {
             // ERR ranks effects linearised at a small probe; for effects nonlinear in
             // their parameter (a lag and a dead time look alike there) the runner-ups
@@ -316,23 +307,17 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
     // beside them already) is refitted alone on the starting model and joined to the
     // named ones; the best join is kept if its BIC falls.
     if !effects.is_empty() && effects.len() < opts.max_effects && !stats::windows(&r_cur, sigma, &time_s).is_empty() {
-        let mut joins: Vec<(&Ranked, D::Model, Vec<f64>, f64)> = ranking
+        let best = ranking
             .iter()
             .flatten()
             .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
             .filter_map(|r| {
                 let m = domain.join(&current, &start, r)?;
-                let sim = domain.simulate(&m);
-                if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
-                    return None;
-                }
-                let r1 = residual(&y, &sim);
-                let d = delta_bic(&r_cur, &r1, domain.fitted_parameters(&r.name, r.coefficients.len()));
-                (d < 0.0).then_some((r, m, r1, d))
+                let (m, r1, d) = confirmed(domain, &y, &r_cur, m, domain.fitted_parameters(&r.name, r.coefficients.len()))?;
+                Some((r, m, r1, d))
             })
-            .collect();
-        joins.sort_by(|a, b| a.3.total_cmp(&b.3));
-        if let Some((r, m, r1, d)) = joins.into_iter().next() {
+            .min_by(|a, b| a.3.total_cmp(&b.3));
+        if let Some((r, m, r1, d)) = best {
             let mut ev = evidence(r, &r_cur, &r1, d);
             ev.insert("joined".into(), 1.0);
             effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new() });
@@ -361,6 +346,18 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
         model_after: current,
         report,
     })
+}
+
+/// `model` with its residual on `y` and BIC change from `r0` (`k` parameters added),
+/// if its simulation is finite and the BIC falls: a refit that confirms an effect.
+fn confirmed<D: Domain>(domain: &D, y: &[f64], r0: &[f64], model: D::Model, k: usize) -> Option<(D::Model, Vec<f64>, f64)> {
+    let sim = domain.simulate(&model);
+    if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let r1 = residual(y, &sim);
+    let d = delta_bic(r0, &r1, k);
+    (d < 0.0).then_some((model, r1, d))
 }
 
 /// Evidence of an effect: its selection round (`r`) and its nonlinear refit, which
