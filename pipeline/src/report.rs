@@ -9,8 +9,7 @@ use fdmlab_reports::{Format, Provenance, RenderedFile, Report, Table};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
-/// The artifact every report stage writes: the [`Report`] document as JSON.
-pub const REPORT_JSON: &str = "document.json";
+pub use crate::stage::REPORT_JSON;
 
 /// Which runs a report covers.
 #[derive(Debug, Clone, Default)]

@@ -119,13 +119,16 @@ impl StageOutput {
         self.metrics.insert(name.to_string(), value);
         self
     }
-    /// Add the report as `report.json`; runs render it with its provenance (builder style).
+    /// Add the report as [`REPORT_JSON`]; runs render it with its provenance (builder style).
     pub fn add_report(mut self, report: &fdmlab_reports::Report) -> Result<Self> {
         let bytes = serde_json::to_vec_pretty(report).map_err(|e| Error::Stage { stage: "report".into(), message: e.to_string() })?;
-        self.artifacts.push(Artifact { name: crate::report::REPORT_JSON.into(), media_type: "application/json".into(), bytes });
+        self.artifacts.push(Artifact { name: REPORT_JSON.into(), media_type: "application/json".into(), bytes });
         Ok(self)
     }
 }
+
+/// The artifact every report stage writes: the `fdmlab_reports::Report` document as JSON.
+pub const REPORT_JSON: &str = "document.json";
 
 /// What a running stage can read.
 pub struct StageInput<'a> {

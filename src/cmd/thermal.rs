@@ -15,7 +15,7 @@ use fdmlab_models::thermal::twin::{self, StepTest, Twin};
 use fdmlab_pipeline::stage::{Artifact, InputRef};
 use fdmlab_pipeline::store::{write_file_atomic, write_files_atomic};
 use fdmlab_pipeline::{Error, Hash};
-use nalgebra::{Complex, DMatrix};
+use nalgebra::Complex;
 use serde_json::json;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -462,11 +462,6 @@ fn load_model(arg: &str, ctx: &Ctx) -> anyhow::Result<(StateSpace, Option<Therma
     Ok((ss, model, name))
 }
 
-/// Heater column only (pole placement is single-input).
-fn heater_only(ss: &StateSpace) -> anyhow::Result<StateSpace> {
-    Ok(StateSpace::new(ss.a.clone(), ss.b.columns(0, 1).into_owned(), ss.c.clone(), DMatrix::from_element(1, 1, ss.d[(0, 0)]), ss.dt_s)?)
-}
-
 fn parse_pole(s: &str) -> anyhow::Result<Complex<f64>> {
     let t = s.trim();
     let err = || bad(format!("pole `{s}`: expected a number or `a+bi`"));
@@ -489,7 +484,7 @@ fn parse_pole(s: &str) -> anyhow::Result<Complex<f64>> {
 
 fn design(ss: &StateSpace, poles: &[String], discrete: Option<f64>, method: Option<PlacementMethod>) -> anyhow::Result<(StateSpace, control::Placement)> {
     let poles: Vec<Complex<f64>> = poles.iter().map(|p| parse_pole(p)).collect::<anyhow::Result<_>>()?;
-    let ss = heater_only(ss)?;
+    let ss = ss.heater_plant()?;
     // The poles as given: z-plane for a discrete model, else s-plane.
     let z_plane = ss.dt_s.is_some();
     if let Some(p) = poles.iter().find(|p| if z_plane { p.norm() >= 1.0 } else { p.re >= 0.0 }) {
@@ -596,8 +591,8 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let note = format!("fdmlab {} from model {}", env!("CARGO_PKG_VERSION"), name);
     let discrete = |ss: &StateSpace| -> anyhow::Result<StateSpace> {
         Ok(match ss.dt_s {
-            Some(_) => heater_only(ss)?,
-            None => heater_only(ss)?.c2d(1.0)?,
+            Some(_) => ss.heater_plant()?,
+            None => ss.heater_plant()?.c2d(1.0)?,
         })
     };
     let physics = || -> anyhow::Result<fdmlab_models::thermal::physics::Rates> {

@@ -1,5 +1,6 @@
 //! The one integration-test binary: drives the `fdmlab` binary end to end.
 
+mod architecture;
 mod cache;
 mod cli;
 mod common;

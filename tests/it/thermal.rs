@@ -131,6 +131,46 @@ fn thermal_grid_spec_reruns_from_cache_and_its_runs_stay_readable() {
     let checked = sb.json(&["verify"])["checked"].as_u64();
     assert_eq!(sb.json(&["gc"])["removed_blobs"], 0);
     assert_eq!(sb.json(&["verify"])["checked"].as_u64(), checked);
+    the_cli_designs_the_specs_controller_on_the_same_model(&sb, first);
+}
+
+/// One rule for the heater plant (`StateSpace::heater_plant`: heater column,
+/// D = 0): the spec's best generaliser, handed to `thermal simulate`, gives the
+/// spec's state-feedback response and IMC PID to rounding. Before the rule the
+/// CLI kept the identified D and the kind dropped it.
+fn the_cli_designs_the_specs_controller_on_the_same_model(sb: &Sandbox, run: &serde_json::Value) {
+    let output = |stage: &str, name: &str| -> serde_json::Value {
+        let s = run["stages"].as_array().expect("stages").iter().find(|s| s["name"] == stage).expect("stage");
+        let o = s["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == name).expect("output");
+        serde_json::from_str(&sb.ok(&["cat", o["hash"].as_str().expect("hash")])).expect("json artifact")
+    };
+    let mut best = output("identify", "models.json")[output("crossval", "crossval.json")["best"].as_u64().expect("best") as usize]["model"].clone();
+    // A feedthrough of 2.5 °C per unit duty (1 % of the twin's 250 °C heater gain;
+    // kept, it moves the FOPDT fit and so the PID): under the rule it changes no design.
+    for form in ["ss", "continuous"] {
+        if let Some(d) = best.get_mut(form).and_then(|m| m.get_mut("D")).and_then(|d| d.as_array_mut()) {
+            d[0] = serde_json::json!(2.5);
+        }
+    }
+    let best = &best;
+    sb.write("best.json", &best.to_string());
+    // The spec: every pole at s = -0.02 (z = e^{-0.02} at 1 s), target 108, 1500 s, duty 0..1.
+    let order = best["order"].as_u64().expect("order") as usize;
+    let pole = if best.get("continuous").is_some_and(|c| !c.is_null()) { "-0.02".to_string() } else { format!("{:.17}", (-0.02f64).exp()) };
+    let mut args = vec!["thermal", "simulate", "--model", "best.json", "--target", "108", "--duration", "1500", "--dt", "1", "--u-max", "1", "--poles"];
+    args.extend(std::iter::repeat_n(pole.as_str(), order));
+    let cli = sb.json(&args);
+    let (responses, pid) = (output("control", "responses.json"), output("control", "pid.json"));
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-12);
+    for key in ["overshoot_percent", "effort", "min_output"] {
+        let (c, s) = (cli["state_feedback"][key].as_f64().expect(key), responses["state_feedback"]["metrics"][key].as_f64().expect(key));
+        assert!(close(c, s), "state feedback {key}: CLI {c} vs spec {s}");
+    }
+    let imc = &cli["pid"][1]["pid"];
+    for key in ["kp", "ki", "kd"] {
+        let (c, s) = (imc[key].as_f64().expect(key), pid[key].as_f64().expect(key));
+        assert!(close(c, s), "IMC PID {key}: CLI {c} vs spec {s}");
+    }
 }
 
 #[test]

@@ -105,6 +105,15 @@ impl StateSpace {
         StateSpace::new(a, b, c, d, m.dt_s)
     }
 
+    /// The plant every controller is designed on (pole placement, FOPDT/PID
+    /// rules, exports), from the CLI and from a spec alike: the heater column
+    /// (input 0) alone, strictly proper (`D = 0`). A heater cannot move the
+    /// sensor reading within the sample it is applied in, the closed-loop
+    /// simulation reads `y = C x`, and an identified `D` is estimation noise.
+    pub fn heater_plant(&self) -> Result<StateSpace, ModelError> {
+        StateSpace::new(self.a.clone(), self.b.columns(0, 1).into_owned(), self.c.clone(), DMatrix::zeros(1, 1), self.dt_s)
+    }
+
     /// Zero-order-hold discretisation: `[Ad Bd; 0 I] = exp([A B; 0 0]·dt)`
     /// (Franklin, Powell & Workman 1998, eq. 4.58).
     pub fn c2d(&self, dt_s: f64) -> Result<StateSpace, ModelError> {

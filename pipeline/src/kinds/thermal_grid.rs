@@ -13,10 +13,9 @@ use fdmlab_models::thermal::crossval::{self, CrossValidation};
 use fdmlab_models::thermal::data::Experiment;
 use fdmlab_models::thermal::ident::{self, IdentOptions};
 use fdmlab_models::thermal::model::{Family, ThermalModel};
-use fdmlab_models::thermal::ss::StateSpace;
 use fdmlab_models::thermal::twin::{identification_grid, verification_grid, StepTest, Twin};
 use fdmlab_reports::{LinePlot, Report, Table};
-use nalgebra::{Complex, DMatrix};
+use nalgebra::Complex;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -334,7 +333,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 .get(cv.best)
                 .ok_or_else(|| fdmlab_models::ModelError::Shape(format!("cross-validation picked model {} of {}", cv.best, entries.len())))?;
             let ss = best.model.state_space()?;
-            let plant = StateSpace::new(ss.a.clone(), ss.b.columns(0, 1).into_owned(), ss.c.clone(), DMatrix::zeros(1, 1), ss.dt_s)?;
+            let plant = ss.heater_plant()?;
             let dt = plant.dt_s.unwrap_or(1.0);
             let z = Complex::new((c.pole_s * dt).exp(), 0.0);
             let placement = control::place(&plant, &vec![z; plant.order()], None)?;
@@ -376,13 +375,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 if let Some(rates) = grey.model.physics {
                     use fdmlab_datasets::thermal::export as ex;
                     let phys = ex::mpc_physics_from_rates(&rates, x.heater_power_w, x.filament_heat_j_k_mm)?;
-                    let fo = control::fopdt_of(
-                        &grey
-                            .model
-                            .state_space()
-                            .and_then(|s| StateSpace::new(s.a.clone(), s.b.columns(0, 1).into_owned(), s.c.clone(), DMatrix::zeros(1, 1), s.dt_s))?,
-                        4000.0,
-                    )?;
+                    let fo = control::fopdt_of(&grey.model.state_space()?.heater_plant()?, 4000.0)?;
                     out = out
                         .add("marlin-mpc.gcode", "text/plain", ex::marlin_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
                         .add("klipper-mpc.cfg", "text/plain", ex::klipper_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
