@@ -45,6 +45,9 @@ enum Command {
     Push(cmd::remote::TransferArgs),
     /// Copy runs from a remote, verified blob by blob (every run this store lacks when none is named).
     Pull(cmd::remote::TransferArgs),
+    /// Runs into an MLflow tracking server (params, metrics, tags, artifacts, registered models).
+    #[command(subcommand)]
+    Mlflow(cmd::mlflow::MlflowCommand),
     /// Re-hash every blob; list corrupt or missing ones (exit 1 if any).
     Verify,
     /// Remove blobs and stage records that no run references.
@@ -112,6 +115,7 @@ fn main() -> ExitCode {
         Command::Remote(c) => cmd::remote::remote(c, &ctx),
         Command::Push(a) => cmd::remote::push(a, &ctx),
         Command::Pull(a) => cmd::remote::pull(a, &ctx),
+        Command::Mlflow(c) => cmd::mlflow::mlflow(c, &ctx),
         Command::Verify => cmd::runs::verify(&ctx),
         Command::Gc => cmd::runs::gc(&ctx),
         Command::Cat(a) => cmd::runs::cat(a, &ctx),

@@ -22,6 +22,9 @@ pub enum Error {
     /// A stage failed while running.
     #[error("stage `{stage}`: {message}")]
     Stage { stage: String, message: String },
+    /// An MLflow tracking server refused a request or could not be reached.
+    #[error("mlflow: {0}")]
+    Mlflow(String),
     /// The operating system refused a read or write.
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },

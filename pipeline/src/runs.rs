@@ -62,15 +62,26 @@ impl std::fmt::Display for Unreadable {
     }
 }
 
+/// The entries of `runs/`: none when it does not exist, an [`Unreadable`]
+/// when it cannot be listed.
+pub fn run_folders(store: &Store) -> std::result::Result<Option<fs::ReadDir>, Unreadable> {
+    let dir = store.runs_dir();
+    match fs::read_dir(&dir) {
+        Ok(entries) => Ok(Some(entries)),
+        Err(e) if e.kind() == ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(Unreadable { message: format!("{}: {e}", dir.display()), id: String::new() }),
+    }
+}
+
 /// Read every run folder.
 pub fn scan(store: &Store) -> RunScan {
     let mut out = RunScan::default();
     let dir = store.runs_dir();
-    let entries = match fs::read_dir(&dir) {
-        Ok(entries) => entries,
-        Err(e) if e.kind() == ErrorKind::NotFound => return out,
-        Err(e) => {
-            out.bad.push(Unreadable { message: format!("{}: {e}", dir.display()), id: String::new() });
+    let entries = match run_folders(store) {
+        Ok(Some(entries)) => entries,
+        Ok(None) => return out,
+        Err(u) => {
+            out.bad.push(u);
             return out;
         }
     };
@@ -204,16 +215,9 @@ pub fn diff(a: &RunRecord, b: &RunRecord) -> Vec<DiffRow> {
         rows.push(DiffRow { what: what.into(), name, a: va, b: vb, changed });
     };
     let flat = |r: &RunRecord| {
-        let mut artifacts = BTreeMap::new();
-        let mut keys = BTreeMap::new();
-        for s in &r.stages {
-            keys.insert(s.name.clone(), s.key.clone());
-            for o in &s.outputs {
-                artifacts.insert(format!("{}/{}", s.name, o.name), o.hash.0.clone());
-            }
-        }
+        let keys: BTreeMap<String, String> = r.stages.iter().map(|s| (s.name.clone(), s.key.clone())).collect();
         let (params, metrics) = flat_params_metrics(r);
-        (keys, params, metrics, artifacts)
+        (keys, params, metrics, flat_artifacts(r))
     };
     let (ka, pa, ma, aa) = flat(a);
     let (kb, pb, mb, ab) = flat(b);
@@ -229,14 +233,20 @@ pub fn diff(a: &RunRecord, b: &RunRecord) -> Vec<DiffRow> {
 /// A run's stage parameters and metrics by dotted name (`stage.key`), as text.
 pub fn flat_params_metrics(r: &RunRecord) -> (BTreeMap<String, String>, BTreeMap<String, String>) {
     let mut params = BTreeMap::new();
-    let mut metrics = BTreeMap::new();
     for s in &r.stages {
         flatten_json(&format!("{}.", s.name), &s.params, &mut params);
-        for (k, v) in &s.metrics {
-            metrics.insert(format!("{}.{k}", s.name), v.to_string());
-        }
     }
-    (params, metrics)
+    (params, flat_metrics(r).into_iter().map(|(k, v)| (k, v.to_string())).collect())
+}
+
+/// A run's stage metrics by dotted name (`stage.metric`).
+pub fn flat_metrics(r: &RunRecord) -> BTreeMap<String, f64> {
+    r.stages.iter().flat_map(|s| s.metrics.iter().map(move |(k, v)| (format!("{}.{k}", s.name), *v))).collect()
+}
+
+/// A run's artifact hashes by `stage/output`.
+pub fn flat_artifacts(r: &RunRecord) -> BTreeMap<String, String> {
+    r.stages.iter().flat_map(|s| s.outputs.iter().map(move |o| (format!("{}/{}", s.name, o.name), o.hash.0.clone()))).collect()
 }
 
 fn flatten_json(prefix: &str, v: &serde_json::Value, out: &mut BTreeMap<String, String>) {
@@ -289,19 +299,43 @@ impl LockFile {
 
 /// Current UTC time as `YYYY-MM-DDTHH:MM:SSZ`.
 pub fn iso_utc_now() -> String {
-    let (y, mo, d, h, mi, s) = utc_now();
+    iso_utc_at(unix_now())
+}
+
+/// A UTC time given in seconds since the epoch as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn iso_utc_at(secs: i64) -> String {
+    let (y, mo, d, h, mi, s) = civil(secs);
     format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}Z")
+}
+
+/// Seconds since the epoch of a `YYYY-MM-DDTHH:MM:SSZ` time (what records hold).
+pub fn unix_of_iso(t: &str) -> Option<i64> {
+    let num = |a: usize, b: usize| t.get(a..b)?.parse::<i64>().ok();
+    let (y, m, d) = (num(0, 4)?, num(5, 7)?, num(8, 10)?);
+    let (h, mi, s) = (num(11, 13)?, num(14, 16)?, num(17, 19)?);
+    // Days from the civil date (Hinnant's inverse of [`civil`]).
+    let y = if m <= 2 { y - 1 } else { y };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let doy = (153 * (if m > 2 { m - 3 } else { m + 9 }) + 2) / 5 + d - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    Some(days * 86_400 + h * 3600 + mi * 60 + s)
+}
+
+/// Seconds since the epoch, now.
+pub fn unix_now() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs() as i64).unwrap_or(0)
 }
 
 /// `YYYYMMDD-HHMMSS.micros`: sorts by start time, even within one second.
 fn compact_utc_now() -> String {
-    let (y, mo, d, h, mi, s) = utc_now();
+    let (y, mo, d, h, mi, s) = civil(unix_now());
     let micros = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_micros()).unwrap_or(0);
     format!("{y:04}{mo:02}{d:02}-{h:02}{mi:02}{s:02}.{micros:06}")
 }
 
-fn utc_now() -> (i64, u32, u32, u32, u32, u32) {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs() as i64).unwrap_or(0);
+fn civil(secs: i64) -> (i64, u32, u32, u32, u32, u32) {
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Civil date from days since 1970-01-01 (Hinnant, "chrono-compatible low-level date algorithms").
     let z = days + 719_468;
@@ -314,4 +348,16 @@ fn utc_now() -> (i64, u32, u32, u32, u32, u32) {
     let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
     let y = yoe + era * 400 + i64::from(m <= 2);
     (y, m, d, (rem / 3600) as u32, ((rem % 3600) / 60) as u32, (rem % 60) as u32)
+}
+
+#[cfg(test)]
+mod time_tests {
+    #[test]
+    fn iso_round_trip() {
+        for secs in [0, 951_782_400, 1_796_284_436, 4_107_542_399] {
+            assert_eq!(super::unix_of_iso(&super::iso_utc_at(secs)), Some(secs));
+        }
+        // 2000-02-29 (a leap day) is 951782400 (date -d 2000-02-29T00:00:00Z +%s).
+        assert_eq!(super::unix_of_iso("2000-02-29T00:00:00Z"), Some(951_782_400));
+    }
 }

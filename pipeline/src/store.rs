@@ -4,6 +4,7 @@
 //! objects/ab/cdef…      immutable blobs named by their blake3 hash
 //! stages/<key>.json     stage records: which blobs a stage key produced
 //! runs/<run-id>/run.json run records
+//! runs-index.json       summaries of the run records (a cache, rebuilt from them)
 //! reports/<experiment>/ materialised reports of the latest run
 //! tmp/                  staging area: every write lands here, then is renamed
 //! sweeps/<id>/          a sweep's variant specs (`<i>.toml`), task logs, job files
@@ -24,6 +25,7 @@ const OBJECTS: &str = "objects";
 const STAGES: &str = "stages";
 const RUNS: &str = "runs";
 const RUN_RECORD: &str = "run.json";
+const RUNS_INDEX: &str = "runs-index.json";
 const REPORTS: &str = "reports";
 const TMP: &str = "tmp";
 const SWEEPS: &str = "sweeps";
@@ -252,6 +254,11 @@ impl Store {
     /// The record file of run `id` (inside its run folder).
     pub fn run_record_path(&self, id: &str) -> PathBuf {
         self.runs_dir().join(id).join(RUN_RECORD)
+    }
+
+    /// The index of run summaries ([`crate::runs_index`]).
+    pub fn runs_index_path(&self) -> PathBuf {
+        self.root.join(RUNS_INDEX)
     }
 
     /// Store a run record (atomically): the run is finished once it lands.

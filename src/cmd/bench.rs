@@ -18,6 +18,8 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 20)]
         repeat: u32,
     },
+    /// Runs table: 10,000 synthetic runs through the index of run summaries vs reading every run.json.
+    Runs(super::runs_bench::BenchArgs),
     /// Sweeps: machinery per variant vs direct runs; push/pull vs the bare object-store client (`--remote`).
     Sweep(super::sweep::BenchArgs),
     /// H-Bot twin: a 1 s move, and screening + L27 + confirmation.
@@ -44,6 +46,7 @@ pub enum BenchCommand {
 pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Engine { spec, repeat } => engine_bench(&spec, repeat.max(1), ctx),
+        BenchCommand::Runs(a) => super::runs_bench::bench(a, ctx),
         BenchCommand::Sweep(a) => super::sweep::bench(a, ctx),
         BenchCommand::Hbot(a) => super::hbot::bench(a, ctx),
         BenchCommand::Thermal(a) => super::thermal::bench(a, ctx),

@@ -3,11 +3,13 @@
 pub mod bench;
 pub mod discrepancy;
 pub mod hbot;
+pub mod mlflow;
 pub mod pa;
 pub mod remote;
 pub mod report;
 pub mod run;
 pub mod runs;
+pub mod runs_bench;
 pub mod sweep;
 pub mod thermal;
 pub mod turns;

@@ -15,6 +15,50 @@ pub enum RunsCommand {
         /// Run id or unique prefix.
         id: String,
     },
+    /// One row per run (sweep variants included), params / metrics / artifacts columns, as `dvc exp show`.
+    Table(TableArgs),
+}
+
+/// Arguments of `fdmlab runs table`.
+#[derive(clap::Args)]
+pub struct TableArgs {
+    /// Only runs of this experiment.
+    #[arg(long)]
+    pub experiment: Option<String>,
+    /// Only runs of this kind (`thermal-ident`, `pressure-advance`, …, `command`).
+    #[arg(long)]
+    pub kind: Option<String>,
+    /// Only runs started since a UTC date or time (2026-03-01, 2026-03-01T12:00) or an age (90m, 12h, 7d, 2w).
+    #[arg(long)]
+    pub since: Option<String>,
+    /// Columns to keep (regex on names); alone: only these, with --drop: kept although dropped.
+    #[arg(long, value_name = "REGEX")]
+    pub keep: Option<String>,
+    /// Columns to drop (regex on names, e.g. `^gcode/` or `csv$`).
+    #[arg(long, value_name = "REGEX")]
+    pub drop: Option<String>,
+    /// Sort by this metric (full name or unique suffix), smallest first; runs without it last.
+    #[arg(long, value_name = "METRIC")]
+    pub sort: Option<String>,
+    /// With --sort: largest first.
+    #[arg(long)]
+    pub desc: bool,
+    /// Output: a terminal table that fits the width (default), csv, md or json (all columns, full precision).
+    #[arg(long, value_enum, default_value_t = TableFormat::Text)]
+    pub format: TableFormat,
+}
+
+/// How `runs table` prints.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+pub enum TableFormat {
+    /// Aligned columns within the terminal's width.
+    Text,
+    /// RFC 4180 CSV, headers `group:name`.
+    Csv,
+    /// A Markdown table.
+    Md,
+    /// One object per run.
+    Json,
 }
 
 /// Arguments of `fdmlab cat`.
@@ -44,6 +88,7 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
                     .collect()
             });
         }
+        RunsCommand::Table(a) => table(a, &store, ctx)?,
         RunsCommand::Show { id } => {
             let r = runs::find(&store, &id)?;
             let value = serde_json::to_value(&r)?;
@@ -80,6 +125,40 @@ pub fn runs(cmd: RunsCommand, ctx: &Ctx) -> anyhow::Result<()> {
             });
         }
     }
+    Ok(())
+}
+
+/// `fdmlab runs table`.
+fn table(a: TableArgs, store: &fdmlab_pipeline::Store, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_pipeline::{runs_index, runs_table};
+    let regex = |flag: &str, re: &Option<String>| -> anyhow::Result<Option<regex::Regex>> {
+        re.as_deref().map(|r| regex::Regex::new(r).map_err(|e| fdmlab_pipeline::Error::bad_input(format!("{flag} `{r}`: {e}")).into())).transpose()
+    };
+    let query = runs_table::Query {
+        experiment: a.experiment,
+        kind: a.kind,
+        since: a.since.as_deref().map(|s| runs_table::since_bound(s, runs::unix_now())).transpose()?,
+        keep: regex("--keep", &a.keep)?,
+        drop: regex("--drop", &a.drop)?,
+        sort: a.sort,
+        descending: a.desc,
+    };
+    let summaries = runs_index::summaries(store);
+    for bad in &summaries.bad {
+        eprintln!("warning: unreadable run record {bad} (see `fdmlab verify`)");
+    }
+    let t = runs_table::build(summaries.runs, &query)?;
+    let text = match (ctx.json, a.format) {
+        (true, _) | (_, TableFormat::Json) => t.to_json().to_string(),
+        (_, TableFormat::Csv) => t.to_csv(),
+        (_, TableFormat::Md) => t.to_markdown(),
+        (_, TableFormat::Text) => {
+            let width =
+                console::Term::stdout().size_checked().map(|(_, w)| usize::from(w)).or_else(|| std::env::var("COLUMNS").ok()?.parse().ok()).unwrap_or(120);
+            t.to_terminal(width)
+        }
+    };
+    super::print_out(text.trim_end());
     Ok(())
 }
 
