@@ -83,6 +83,26 @@ fn gcode_pa_matrix_writes_plates_and_a_manifest_with_flows() {
     let out = sb.run(&["validate", spec.to_str().expect("utf8")]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     assert!(stderr(&out).contains("calibration") && stderr(&out).contains("slow speed"), "{}", stderr(&out));
+    // A valid matrix spec runs: its gcode stage stores every plate and the matrix manifest
+    // (a tiny K table and network keep the rest of the chain short).
+    let text = std::fs::read_to_string(&spec)
+        .expect("spec")
+        .replace("[10, 50]", "[50, 100]")
+        .replace("firmware = \"klipper\"", "firmware = \"klipper\"\nbed_mm = [300, 300]");
+    let mut csv = String::from("hotend_c,k\n");
+    for t in 0..8 {
+        csv += &format!("{},{}\n", 200 + 5 * t, 0.6 - 0.005 * t as f64);
+    }
+    sb.write("t.csv", &csv);
+    let tail = "line = { slow_mm_s = 20, fast_mm_s = 80, accel_mm_s2 = 1000, slow_len_mm = 10, fast_len_mm = 40 }\n[dataset]\nsource = \"file\"\nfile = \"t.csv\"\ntarget = \"k\"\n[model]\nhidden = [4, 4, 2]\nepochs = 5\nbatch = 8\nlearning_rate = 0.01\nfolds = 2\n[export]\nformats = [\"json\"]\n";
+    let good = sb.write("good.toml", &(text + tail));
+    let out = sb.run(&["run", good.to_str().expect("utf8")]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let run = sb.json(&["runs", "show", "latest"]);
+    let gcode = run["stages"].as_array().expect("stages").iter().find(|s| s["name"] == "gcode").expect("gcode stage");
+    let names: Vec<&str> = gcode["outputs"].as_array().expect("outputs").iter().filter_map(|o| o["name"].as_str()).collect();
+    assert_eq!(names, ["calibration.p1.gcode", "calibration.json"], "{gcode}");
+    assert_eq!(gcode["metrics"]["patterns"], 2.0);
 }
 
 #[test]
