@@ -5,6 +5,7 @@
 //! repeated in the domain doc).
 
 use fdmlab_datasets::pa::calibration::{self, Calibration, CalibrationGcode, Firmware, Pattern, Printer};
+use fdmlab_datasets::pa::matrix::{self, MatrixGcode};
 use fdmlab_datasets::DatasetError;
 use fdmlab_models::extrusion::LinePattern;
 use serde::Serialize;
@@ -28,6 +29,11 @@ use serde::Serialize;
 /// | `spacing_mm` | 5 | 0.5–100 mm |
 /// | `band_mm` (tower) | 2 | 0.1–100 mm |
 /// | `title` | `fdmlab pressure-advance calibration` | one line |
+/// | `matrix` (speeds, accels) | none: one print | speeds above the slow speed, ≤ 1000 mm/s; accels 10–100000 mm/s²; ≤ 64 pairs, ≤ 20 plates |
+///
+/// With a matrix, each (speed, acceleration) pair is one lines pattern whose
+/// fast segment runs at that speed and acceleration; the fast segment is
+/// lengthened (for all patterns alike) until the slowest ramp cruises half of it.
 ///
 /// Band height: 2 mm is ten 0.2 mm layers, enough for a corner's bulge or
 /// gap to show and be scored, and keeps the default 21-band tower 42 mm tall
@@ -53,6 +59,8 @@ pub struct CalibrationRequest {
     pub spacing_mm: Option<f64>,
     pub band_mm: Option<f64>,
     pub title: Option<String>,
+    /// Adaptive-PA matrix: (speeds mm/s, accelerations mm/s²).
+    pub matrix: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 /// A checked [`CalibrationRequest`]: the G-code writer accepted it.
@@ -60,6 +68,7 @@ pub struct CalibrationRequest {
 pub struct ValidCalibration {
     printer: Printer,
     calibration: Calibration,
+    matrix: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 impl CalibrationRequest {
@@ -104,8 +113,15 @@ impl CalibrationRequest {
             band_mm: self.band_mm.unwrap_or(c.band_mm),
             title: self.title.unwrap_or(c.title),
         };
-        calibration::write(&printer, &calibration)?;
-        Ok(ValidCalibration { printer, calibration })
+        match &self.matrix {
+            Some((speeds, accels)) => {
+                matrix::write(&printer, &calibration, speeds, accels)?;
+            }
+            None => {
+                calibration::write(&printer, &calibration)?;
+            }
+        }
+        Ok(ValidCalibration { printer, calibration, matrix: self.matrix })
     }
 }
 
@@ -121,5 +137,14 @@ impl ValidCalibration {
     /// The G-code and its manifest.
     pub fn write(&self) -> Result<CalibrationGcode, DatasetError> {
         calibration::write(&self.printer, &self.calibration)
+    }
+    /// The matrix's (speeds, accelerations), when the request has one.
+    pub fn matrix(&self) -> Option<&(Vec<f64>, Vec<f64>)> {
+        self.matrix.as_ref()
+    }
+    /// The matrix plates and manifest (refused when the request has no matrix).
+    pub fn write_matrix(&self) -> Result<MatrixGcode, DatasetError> {
+        let (speeds, accels) = self.matrix.as_ref().ok_or_else(|| DatasetError::Refused("no --speeds/--accels matrix was given".into()))?;
+        matrix::write(&self.printer, &self.calibration, speeds, accels)
     }
 }

@@ -6,6 +6,7 @@ use super::Ctx;
 use anyhow::Context as _;
 use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Printer};
 use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
+use fdmlab_datasets::pa::matrix::{MatrixManifest, MATRIX_SCHEMA};
 use fdmlab_datasets::pa::model::{parse_assignments, KaModel, MODEL_SCHEMA};
 use fdmlab_datasets::pa::{grid, scores, table};
 use fdmlab_models::extrusion::{GridConfig, LinePattern};
@@ -85,6 +86,12 @@ pub struct GcodePaArgs {
     pub band: Option<f64>,
     #[arg(long)]
     pub title: Option<String>,
+    /// Adaptive-PA matrix: fast speeds, mm/s (with --accels: one lines pattern per pair).
+    #[arg(long, value_delimiter = ',', requires = "accels")]
+    pub speeds: Option<Vec<f64>>,
+    /// Adaptive-PA matrix: accelerations, mm/s² (with --speeds).
+    #[arg(long, value_delimiter = ',', requires = "speeds")]
+    pub accels: Option<Vec<f64>>,
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -125,8 +132,22 @@ impl GcodePaArgs {
             spacing_mm: self.spacing,
             band_mm: self.band,
             title: self.title.clone(),
+            matrix: self.speeds.clone().zip(self.accels.clone()),
         }
     }
+}
+
+/// Path of plate `i` (1-based) of `n`: the output itself for one plate, else `stem.pI.ext`.
+pub(crate) fn plate_path(output: &Path, i: usize, n: usize) -> PathBuf {
+    if n == 1 {
+        return output.to_path_buf();
+    }
+    let stem = output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = match output.extension() {
+        Some(e) => format!("{stem}.p{i}.{}", e.to_string_lossy()),
+        None => format!("{stem}.p{i}"),
+    };
+    output.with_file_name(name)
 }
 
 /// `<gcode>.json`: where a G-code's manifest is written.
@@ -140,7 +161,11 @@ pub(crate) fn manifest_path(gcode: &Path) -> PathBuf {
 pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
     match cmd {
         GcodeCommand::Pa(a) => {
-            let g = a.to_request().check()?.write()?;
+            let valid = a.to_request().check()?;
+            if valid.matrix().is_some() {
+                return gcode_matrix(&valid, &a.output, ctx);
+            }
+            let g = valid.write()?;
             let manifest = serde_json::to_vec_pretty(&g.manifest)?;
             let mpath = manifest_path(&a.output);
             write_files_atomic(&[(&a.output, g.text.as_bytes()), (&mpath, &manifest)])?;
@@ -164,6 +189,61 @@ pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// `ka scores` on a matrix manifest: best K ± sd and Kendall's W per (flow, acceleration) cell.
+fn matrix_scores(mm: &MatrixManifest, file: &Path, scale: f64, ctx: &Ctx) -> anyhow::Result<()> {
+    let cells = scores::ingest_matrix(&super::read_input(file)?, &file.display().to_string(), mm, scale)?;
+    let value = serde_json::json!({
+        "cells": cells.iter().map(|c| serde_json::json!({
+            "pattern": c.pattern, "speed_mm_s": c.speed_mm_s, "accel_mm_s2": c.accel_mm_s2, "flow_mm3_s": c.flow_mm3_s,
+            "best_k": c.scores.best.k, "best_k_sd": c.scores.best.k_sd, "kendall_w": c.scores.kendall_w,
+            "raters": c.scores.raters.len(), "rows": c.scores.rows,
+        })).collect::<Vec<_>>(),
+    });
+    ctx.emit(&value, || {
+        let mut s = format!("{} of {} patterns scored\npattern  speed  accel   flow mm³/s  best K ± sd        Kendall's W\n", cells.len(), mm.patterns.len());
+        for c in &cells {
+            let w = c.scores.kendall_w.map(|w| format!("{w:.3}")).unwrap_or_else(|| "n/a".into());
+            s += &format!(
+                "{:>7} {:>6} {:>6} {:>11.3}  {:.4} ± {:.4}   {w}\n",
+                c.pattern, c.speed_mm_s, c.accel_mm_s2, c.flow_mm3_s, c.scores.best.k, c.scores.best.k_sd
+            );
+        }
+        s
+    });
+    Ok(())
+}
+
+/// `fdmlab gcode pa --speeds … --accels …`: every plate and the matrix manifest, all or nothing.
+fn gcode_matrix(valid: &fdmlab_pipeline::requests::ValidCalibration, output: &Path, ctx: &Ctx) -> anyhow::Result<()> {
+    let g = valid.write_matrix()?;
+    let n = g.plates.len();
+    let paths: Vec<PathBuf> = (1..=n).map(|i| plate_path(output, i, n)).collect();
+    let manifest = serde_json::to_vec_pretty(&g.manifest)?;
+    let mpath = manifest_path(output);
+    let mut files: Vec<(&Path, &[u8])> = paths.iter().map(PathBuf::as_path).zip(g.plates.iter().map(|t| t.as_bytes())).collect();
+    files.push((mpath.as_path(), manifest.as_slice()));
+    write_files_atomic(&files)?;
+    let value = serde_json::json!({
+        "plates": paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "manifest": mpath.display().to_string(),
+        "patterns": g.manifest.patterns.iter().map(|p| serde_json::json!({
+            "index": p.index, "plate": p.plate, "speed_mm_s": p.speed_mm_s, "accel_mm_s2": p.accel_mm_s2,
+            "flow_mm3_s": p.flow_mm3_s, "lines": p.manifest.regions.len(),
+        })).collect::<Vec<_>>(),
+    });
+    ctx.emit(&value, || {
+        let mut s = format!("wrote {} patterns on {n} plate(s) and {}\n", g.manifest.patterns.len(), mpath.display());
+        for p in &g.manifest.patterns {
+            s += &format!(
+                "  pattern {:>2} plate {} speed {:>6} mm/s accel {:>6} mm/s² flow {:>7.3} mm³/s\n",
+                p.index, p.plate, p.speed_mm_s, p.accel_mm_s2, p.flow_mm3_s
+            );
+        }
+        s
+    });
+    Ok(())
 }
 
 /// `fdmlab ka …`
@@ -278,13 +358,19 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         }
         KaCommand::Scores { manifest, scores: file, scale } => {
             let mb = super::read_input(&manifest)?;
-            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input {
+            let bad_json = |e: serde_json::Error| Error::Input {
                 file: manifest.display().to_string(),
                 line: e.line(),
                 column: e.column(),
                 key: String::new(),
                 message: e.to_string(),
-            })?;
+            };
+            let is_matrix = serde_json::from_slice::<serde_json::Value>(&mb).map_err(bad_json)?["schema"] == MATRIX_SCHEMA;
+            if is_matrix {
+                let mm: MatrixManifest = serde_json::from_slice(&mb).map_err(bad_json)?;
+                return matrix_scores(&mm, &file, scale, ctx);
+            }
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(bad_json)?;
             let s = scores::ingest(&super::read_input(&file)?, &file.display().to_string(), &m, scale)?;
             let value = serde_json::json!({"best_k": s.best.k, "best_k_sd": s.best.k_sd, "best_line": s.best.best_line + 1, "window": s.best.window, "raters": s.raters, "rows": s.rows, "kendall_w": s.kendall_w, "kendall_lines": s.kendall_lines});
             ctx.emit(&value, || {
@@ -303,13 +389,14 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
         }
         KaCommand::SimulateScores { manifest, k_true, raters, seed, output } => {
             let mb = super::read_input(&manifest)?;
-            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(|e| Error::Input {
+            let bad_json = |e: serde_json::Error| Error::Input {
                 file: manifest.display().to_string(),
                 line: e.line(),
                 column: e.column(),
                 key: String::new(),
                 message: e.to_string(),
-            })?;
+            };
+            let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(bad_json)?;
             if !(k_true > 0.0 && k_true <= 10.0) || raters == 0 || raters > 50 {
                 return Err(Error::bad_input("--k-true must be within (0, 10] s and --raters within 1–50").into());
             }
@@ -407,6 +494,18 @@ pub struct ExportKaArgs {
     /// Klipper: material of the `[extruder] pressure_advance` default.
     #[arg(long)]
     pub default_material: Option<String>,
+    /// Adaptive formats (orca, orca-profile, kalico, klipper-adaptive): flows of the table, mm³/s.
+    #[arg(long, value_delimiter = ',')]
+    pub flows: Option<Vec<f64>>,
+    /// Adaptive formats: accelerations of the table, mm/s².
+    #[arg(long, value_delimiter = ',')]
+    pub accels: Option<Vec<f64>>,
+    /// Kalico: slow speed of the calibration lines K was measured on, mm/s.
+    #[arg(long, default_value_t = 20.0)]
+    pub slow_speed: f64,
+    /// Kalico: filament diameter, mm.
+    #[arg(long, default_value_t = 1.75)]
+    pub filament: f64,
     /// Output file (default: stdout).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -425,7 +524,14 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
         fixed: parse_assignments(&a.set)?,
         default_material: a.default_material.clone(),
         label: format!("model {}", &hash.0[..12]),
+        slow_mm_s: a.slow_speed,
+        filament_mm: a.filament,
         ..ExportOptions::default()
+    };
+    let opts = ExportOptions {
+        flows_mm3_s: a.flows.clone().unwrap_or(opts.flows_mm3_s.clone()),
+        accels_mm_s2: a.accels.clone().unwrap_or(opts.accels_mm_s2.clone()),
+        ..opts
     };
     let text = export::export(&m, format, &opts)?;
     match &a.output {
@@ -467,6 +573,33 @@ pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result
     }
     let pattern_s = t.elapsed().as_secs_f64() / reps as f64;
     let lines = calibration::write(&Printer::default(), &cal)?.manifest.regions.len();
+    // Adaptive-PA matrix: Orca's largest suggested set, 5 accelerations × 4 speeds = 20 patterns
+    // of 21 K lines on a 350 mm bed; baseline: 20 single 21-line prints written one by one.
+    let (mprinter, mcal) = (
+        Printer { bed_mm: [350.0, 350.0], ..Printer::default() },
+        Calibration {
+            k_end: 0.08,
+            k_step: 0.004,
+            spacing_mm: 3.0,
+            line: LinePattern { slow_len_mm: 10.0, ..LinePattern::default() },
+            ..Calibration::default()
+        },
+    );
+    let (speeds, accels) = ([50.0, 100.0, 150.0, 200.0], [1000.0, 2000.0, 4000.0, 8000.0, 12000.0]);
+    let mreps = 20;
+    let t = Instant::now();
+    let mut plates = 0;
+    for _ in 0..mreps {
+        plates = fdmlab_datasets::pa::matrix::write(&mprinter, &mcal, &speeds, &accels)?.plates.len();
+    }
+    let matrix_s = t.elapsed().as_secs_f64() / mreps as f64;
+    let t = Instant::now();
+    for _ in 0..mreps {
+        for _ in 0..20 {
+            calibration::write(&mprinter, &mcal)?;
+        }
+    }
+    let singles_s = t.elapsed().as_secs_f64() / mreps as f64;
     // Rust-side inference per prediction (the C header's timing is measured by its test harness).
     let x: Vec<f64> = (0..tb.design.rows()).flat_map(|i| tb.design.row(i).to_vec()).collect();
     let t = Instant::now();
@@ -482,14 +615,15 @@ pub fn bench(ctx: &Ctx, epochs: usize, torch: Option<PathBuf>) -> anyhow::Result
         "train_epochs": epochs, "train_s": train_s, "torch_train_s": torch_s,
         "torch_over_burn": torch_s.map(|s| s / train_s),
         "pattern_lines": lines, "pattern_ms": pattern_s * 1e3, "pattern_bytes": bytes / reps,
+        "matrix_patterns": 20, "matrix_plates": plates, "matrix_ms": matrix_s * 1e3, "matrix_over_singles": matrix_s / singles_s,
         "burn_batch_predict_us": burn_batch_us, "c_predict_us": c_us,
     });
     ctx.emit(&value, || {
         format!(
-            "twin grid: {} rows in {:.2} s\ntraining ({} rows × {} epochs): burn {:.2} s{}\n{}-line pattern: {:.3} ms\ninference: burn batch {:.3} µs/row, C header {}\n",
+            "twin grid: {} rows in {:.2} s\ntraining ({} rows × {} epochs): burn {:.2} s{}\n{}-line pattern: {:.3} ms\nmatrix of 20 patterns ({} plates): {:.3} ms ({:.2}× 20 single prints)\ninference: burn batch {:.3} µs/row, C header {}\n",
             rows.len(), grid_s, tb.design.rows(), epochs, train_s,
             torch_s.map(|s| format!(", PyTorch {s:.2} s ({:.2}× burn's time)", s / train_s)).unwrap_or_else(|| ", PyTorch not measured (pass --torch benches/pa_torch.py with torch installed)".into()),
-            lines, pattern_s * 1e3, burn_batch_us,
+            lines, pattern_s * 1e3, plates, matrix_s * 1e3, matrix_s / singles_s, burn_batch_us,
             c_us.map(|u| format!("{u:.3} µs/prediction")).unwrap_or_else(|| "not measured (no cc)".into())
         )
     });

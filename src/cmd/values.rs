@@ -49,6 +49,9 @@ pub enum KaFormatArg {
     #[value(alias = "rrf")]
     Reprap,
     Orca,
+    OrcaProfile,
+    Kalico,
+    KlipperAdaptive,
     #[value(alias = "c")]
     CHeader,
     Json,
@@ -61,6 +64,9 @@ impl From<KaFormatArg> for ExportFormat {
             KaFormatArg::Klipper => ExportFormat::Klipper,
             KaFormatArg::Reprap => ExportFormat::Reprap,
             KaFormatArg::Orca => ExportFormat::Orca,
+            KaFormatArg::OrcaProfile => ExportFormat::OrcaProfile,
+            KaFormatArg::Kalico => ExportFormat::Kalico,
+            KaFormatArg::KlipperAdaptive => ExportFormat::KlipperAdaptive,
             KaFormatArg::CHeader => ExportFormat::CHeader,
             KaFormatArg::Json => ExportFormat::Json,
         }

@@ -190,3 +190,65 @@ fn marlin_snippet_chooses_k_when_expanded_by_prusaslicer() {
         }
     }
 }
+
+/// A K_A model over flow and acceleration trained on a smooth table (K falls with
+/// both, as Orca's guide reports); returns its run id.
+fn trained_adaptive_ka(sb: &Sandbox) -> String {
+    let mut csv = String::from("flow_mm3_s,accel_mm_s2,k\n");
+    for q in [2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0] {
+        for a in [1000.0, 2000.0, 4000.0, 8000.0] {
+            csv += &format!("{q},{a},{}\n", 0.03 + 0.02 / (1.0 + q / 5.0) - 0.002 * (a / 1000.0f64).log2());
+        }
+    }
+    sb.write("adaptive.csv", &csv);
+    sb.json(&["ka", "train", "--data", "adaptive.csv", "--target", "k", "--epochs", "20", "--folds", "2"])["run"].as_str().expect("run id").to_string()
+}
+
+#[test]
+fn adaptive_exports_interpolate_k_over_flow_and_acceleration() {
+    let sb = Sandbox::new();
+    let run = trained_adaptive_ka(&sb);
+    let grid = ["--flows", "4,8,12", "--accels", "1000,4000"];
+    let export = |format: &str| {
+        let mut a = vec!["export", "ka", "--model", run.as_str(), "--format", format];
+        a.extend(grid);
+        sb.ok(&a)
+    };
+    let k_at = |q: f64, a: f64| {
+        let v = sb.json(&["ka", "predict", "--model", &run, "--set", &format!("flow_mm3_s={q},accel_mm_s2={a}")]);
+        (v["k"].as_f64().expect("k").max(0.0) * 1e4).round() / 1e4
+    };
+    // Orca rows: accelerations ascending, flows ascending within each, K as `ka predict` gives it.
+    let rows: Vec<Vec<f64>> = export("orca").lines().map(|l| l.split(',').map(|x| x.parse().expect("number")).collect()).collect();
+    let order: Vec<(f64, f64)> = rows.iter().map(|r| (r[2], r[1])).collect();
+    assert_eq!(order, [(1000.0, 4.0), (1000.0, 8.0), (1000.0, 12.0), (4000.0, 4.0), (4000.0, 8.0), (4000.0, 12.0)]);
+    for r in &rows {
+        assert!((r[0] - k_at(r[1], r[2])).abs() <= 1e-12, "{r:?}");
+    }
+    let profile: serde_json::Value = serde_json::from_str(&export("orca-profile")).expect("profile json");
+    assert_eq!(profile["adaptive_pressure_advance"][0], "1");
+    assert_eq!(profile["adaptive_pressure_advance_model"][0].as_str().expect("rows").lines().count(), 6);
+    // Klipper macro rendered by a Jinja engine: SPEED 125 mm/s × 0.48 mm × 0.2 mm = 12 mm³/s
+    // → flow node 12; ACCEL 2500 is half way from 1000 to 4000.
+    let template = klipper_gcode(&export("klipper-adaptive"), "FDMLAB_ADAPTIVE_PA");
+    let out = render_klipper(&template, minijinja::context! { SPEED => "125", ACCEL => "2500" }, 0.0).expect("render");
+    let want = 0.5 * (k_at(12.0, 1000.0) + k_at(12.0, 4000.0));
+    assert!((advance(&out) - want).abs() <= 5e-5 + 1e-12, "{out}\nwant {want}");
+    // Off both grids: flow 100 × 0.096 = 9.6 (40 % from 8 to 12), accel 1750 (25 %).
+    let out = render_klipper(&template, minijinja::context! { SPEED => "100", ACCEL => "1750" }, 0.0).expect("render");
+    let lerp = |a: f64, b: f64, t: f64| a + t * (b - a);
+    let want = lerp(lerp(k_at(8.0, 1000.0), k_at(12.0, 1000.0), 0.4), lerp(k_at(8.0, 4000.0), k_at(12.0, 4000.0), 0.4), 0.25);
+    assert!((advance(&out) - want).abs() <= 5e-5 + 1e-12, "{out}\nwant {want}");
+    let err = render_klipper(&template, minijinja::context! { SPEED => "100" }, 0.0).expect_err("no ACCEL");
+    assert!(err.to_string().contains("give SPEED= and ACCEL="), "{err}");
+    // Kalico: the tanh model's block and runtime line.
+    let kalico = export("kalico");
+    for key in [
+        "[extruder]\npressure_advance_model: tanh\nlinear_advance: ",
+        "\nnonlinear_offset: ",
+        "\nlinearization_velocity: ",
+        "SET_PRESSURE_ADVANCE MODEL=tanh ADVANCE=",
+    ] {
+        assert!(kalico.contains(key), "{key}\n{kalico}");
+    }
+}

@@ -4,6 +4,7 @@
 //! levels of the model's material column, temperatures span what the model saw for
 //! each material, and every other input is fixed by the user (`--set`).
 
+use super::adaptive::{fit_kalico_tanh, AdaptiveTable};
 use super::calibration::{check_text, fmt_k};
 use super::model::KaModel;
 use super::table::Feature;
@@ -18,6 +19,12 @@ pub enum ExportFormat {
     Klipper,
     Reprap,
     Orca,
+    /// Orca filament-profile keys (adaptive table and the fallback scalar PA), JSON.
+    OrcaProfile,
+    /// Kalico `pressure_advance_model: tanh` fitted to K over flow.
+    Kalico,
+    /// Klipper macro setting K for a speed and acceleration.
+    KlipperAdaptive,
     CHeader,
     Json,
 }
@@ -29,9 +36,16 @@ impl ExportFormat {
             "klipper" => ExportFormat::Klipper,
             "reprap" | "rrf" => ExportFormat::Reprap,
             "orca" => ExportFormat::Orca,
+            "orca-profile" => ExportFormat::OrcaProfile,
+            "kalico" => ExportFormat::Kalico,
+            "klipper-adaptive" => ExportFormat::KlipperAdaptive,
             "c-header" | "c" => ExportFormat::CHeader,
             "json" => ExportFormat::Json,
-            _ => return Err(DatasetError::Refused(format!("unknown export format `{s}` (marlin, klipper, reprap, orca, c-header, json)"))),
+            _ => {
+                return Err(DatasetError::Refused(format!(
+                    "unknown export format `{s}` (marlin, klipper, reprap, orca, orca-profile, kalico, klipper-adaptive, c-header, json)"
+                )))
+            }
         })
     }
 
@@ -39,8 +53,9 @@ impl ExportFormat {
     pub fn extension(self) -> &'static str {
         match self {
             ExportFormat::Marlin | ExportFormat::Reprap => "gcode",
-            ExportFormat::Klipper => "cfg",
+            ExportFormat::Klipper | ExportFormat::Kalico | ExportFormat::KlipperAdaptive => "cfg",
             ExportFormat::Orca => "txt",
+            ExportFormat::OrcaProfile => "json",
             ExportFormat::CHeader => "h",
             ExportFormat::Json => "json",
         }
@@ -62,6 +77,10 @@ pub struct ExportOptions {
     /// Orca: flows (mm³/s) and accelerations (mm/s²) of the adaptive table.
     pub flows_mm3_s: Vec<f64>,
     pub accels_mm_s2: Vec<f64>,
+    /// Slow speed of the calibration lines K was measured on (Kalico's fit), mm/s.
+    pub slow_mm_s: f64,
+    /// Filament diameter (Kalico's velocity is the filament's), mm.
+    pub filament_mm: f64,
 }
 
 impl Default for ExportOptions {
@@ -75,6 +94,8 @@ impl Default for ExportOptions {
             label: "model".into(),
             flows_mm3_s: vec![2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0],
             accels_mm_s2: vec![500.0, 1000.0, 2000.0, 4000.0],
+            slow_mm_s: 20.0,
+            filament_mm: 1.75,
         }
     }
 }
@@ -187,7 +208,13 @@ pub fn export(model: &KaModel, format: ExportFormat, opts: &ExportOptions) -> Re
         ExportFormat::Marlin => marlin(model, opts),
         ExportFormat::Klipper => klipper(model, opts),
         ExportFormat::Reprap => reprap(model, opts),
-        ExportFormat::Orca => orca(model, opts),
+        ExportFormat::Orca => Ok(adaptive_table(model, opts)?.orca_rows()),
+        ExportFormat::OrcaProfile => Ok(adaptive_table(model, opts)?.orca_profile()),
+        ExportFormat::KlipperAdaptive => {
+            let (w, h) = line_geometry(opts);
+            adaptive_table(model, opts)?.klipper_macro(w, h, &format!("fdmlab adaptive K_A ({}) for Klipper; fixed inputs: {}", opts.label, fixed_text(opts)))
+        }
+        ExportFormat::Kalico => kalico(model, opts),
         ExportFormat::CHeader => c_header(model, opts),
         ExportFormat::Json => json(model, opts),
     }
@@ -304,13 +331,19 @@ fn reprap(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError>
     Ok(s)
 }
 
-/// OrcaSlicer adaptive pressure advance: rows `PA,flow_mm3_s,accel`. Flow and
-/// acceleration reach the model through columns named `flow_mm3_s`/`accel_mm_s2`,
-/// or flow through `speed_mm_s` = flow / (layer × 1.2 × nozzle setting).
-fn orca(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
+/// Line width and layer height the flow refers to: `1.2 × nozzle_setting_mm`
+/// (or `nozzle_mm`) and `layer_mm` from the fixed inputs (defaults 0.48, 0.2 mm).
+fn line_geometry(opts: &ExportOptions) -> (f64, f64) {
     let get = |name: &str| opts.fixed.iter().find(|(k, _)| k.eq_ignore_ascii_case(name)).and_then(|(_, v)| v.parse::<f64>().ok());
+    (1.2 * get("nozzle_setting_mm").or(get("nozzle_mm")).unwrap_or(0.4), get("layer_mm").unwrap_or(0.2))
+}
+
+/// K over the export's flows × accelerations. Flow and acceleration reach the
+/// model through columns named `flow_mm3_s`/`accel_mm_s2`, or flow through
+/// `speed_mm_s` = flow / (line width × layer). Material and temperature not
+/// fixed: the default material at the middle of its range.
+fn adaptive_table(model: &KaModel, opts: &ExportOptions) -> Result<AdaptiveTable, DatasetError> {
     let given = |name: &str| opts.fixed.keys().any(|k| k.eq_ignore_ascii_case(name));
-    // Material and temperature not fixed: the default material at the middle of its range.
     let mut base: Vec<(&str, String)> = Vec::new();
     let material = opts
         .fixed
@@ -327,27 +360,43 @@ fn orca(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
         let (lo, hi) = temp_range(model, opts, &material)?;
         base.push((opts.temp_column.as_str(), format!("{}", 0.5 * (lo + hi))));
     }
-    let mut s = String::new();
-    for &flow in &opts.flows_mm3_s {
-        for &accel in &opts.accels_mm_s2 {
-            let mut over: Vec<(&str, String)> = base.clone();
-            if has(model, "flow_mm3_s") {
-                over.push(("flow_mm3_s", format!("{flow}")));
-            } else if has(model, "speed_mm_s") {
-                let (h, d) = (get("layer_mm"), get("nozzle_setting_mm").or(get("nozzle_mm")));
-                let (Some(h), Some(d)) = (h, d) else {
-                    return Err(DatasetError::Refused("orca export maps flow to speed_mm_s: pass --set layer_mm=…,nozzle_setting_mm=…".into()));
-                };
-                over.push(("speed_mm_s", format!("{}", flow / (h * 1.2 * d))));
-            }
-            if has(model, "accel_mm_s2") {
-                over.push(("accel_mm_s2", format!("{accel}")));
-            }
-            let k = model.predict(&query(model, opts, &over)?)?.max(0.0);
-            let _ = writeln!(s, "{},{},{}", fmt_k(round4(k)), flow, accel);
-        }
+    if !has(model, "flow_mm3_s") && !has(model, "speed_mm_s") && !has(model, "accel_mm_s2") {
+        return Err(DatasetError::Refused("the model has no flow_mm3_s, speed_mm_s or accel_mm_s2 input: an adaptive table would repeat one K".into()));
     }
-    Ok(s)
+    let (w, h) = line_geometry(opts);
+    AdaptiveTable::build(&opts.flows_mm3_s, &opts.accels_mm_s2, |flow, accel| {
+        let mut over: Vec<(&str, String)> = base.clone();
+        if has(model, "flow_mm3_s") {
+            over.push(("flow_mm3_s", format!("{flow}")));
+        } else if has(model, "speed_mm_s") {
+            over.push(("speed_mm_s", format!("{}", flow / (w * h))));
+        }
+        if has(model, "accel_mm_s2") {
+            over.push(("accel_mm_s2", format!("{accel}")));
+        }
+        model.predict(&query(model, opts, &over)?)
+    })
+}
+
+/// Kalico's tanh model fitted to K over the table's flows at its highest
+/// acceleration (Kalico's PA test runs at the `[printer]` acceleration, set
+/// to the highest used while extruding; the model has no acceleration input).
+fn kalico(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
+    let t = adaptive_table(model, opts)?;
+    let top = t.accels_mm_s2[t.accels_mm_s2.len() - 1];
+    let pts: Vec<(f64, f64)> = t.rows.iter().filter(|r| r[2] == top).map(|r| (r[1], r[0])).collect();
+    let (w, h) = line_geometry(opts);
+    let (fit, rms) = fit_kalico_tanh(&pts, opts.slow_mm_s * w * h, opts.filament_mm)?;
+    let note = format!(
+        "fdmlab K_A ({}) as Kalico's tanh model (bleeding-edge-v2), fitted over {:.3}–{:.3} mm³/s at {} mm/s², K RMS {:.5} s; fixed inputs: {}",
+        opts.label,
+        pts[0].0,
+        pts[pts.len() - 1].0,
+        top,
+        rms,
+        fixed_text(opts)
+    );
+    Ok(fit.config(&note))
 }
 
 fn c_floats(v: impl Iterator<Item = f32>) -> String {
@@ -546,18 +595,9 @@ mod tests {
         assert!(export(&m, ExportFormat::Marlin, &ExportOptions::default()).is_err());
         let j: serde_json::Value = serde_json::from_str(&export(&m, ExportFormat::Json, &opts()).expect("json")).expect("valid json");
         assert_eq!(j["layers"].as_array().map(Vec::len), Some(4));
-        let orca = export(
-            &m,
-            ExportFormat::Orca,
-            &ExportOptions {
-                fixed: [("layer_mm".to_string(), "0.2".to_string()), ("material".to_string(), "PLA".to_string()), ("hotend_c".to_string(), "215".to_string())]
-                    .into_iter()
-                    .collect(),
-                ..opts()
-            },
-        )
-        .expect("orca");
-        assert_eq!(orca.lines().count(), 8 * 4);
-        assert!(orca.lines().all(|l| l.split(',').count() == 3));
+        // No flow, speed or acceleration input: an adaptive table would repeat one K.
+        for f in [ExportFormat::Orca, ExportFormat::OrcaProfile, ExportFormat::Kalico, ExportFormat::KlipperAdaptive] {
+            assert!(matches!(export(&m, f, &opts()), Err(DatasetError::Refused(_))), "{f:?}");
+        }
     }
 }

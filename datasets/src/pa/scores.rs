@@ -7,8 +7,11 @@
 //! `rater`: any non-empty name; optional `k`: K_A the rater read off the label,
 //! checked against the manifest (±half a step). Other columns are ignored. Several
 //! raters and unscored lines are normal; a (line, rater) pair may appear once.
+//! A matrix's scores add a `pattern` column ([`ingest_matrix`]).
 
 use super::calibration::Manifest;
+use super::csv::StringTable;
+use super::matrix::MatrixManifest;
 use crate::DatasetError;
 use fdmlab_models::extrusion::{best_k, kendall_w, BestK, ScoreTable};
 use serde::{Deserialize, Serialize};
@@ -30,6 +33,11 @@ pub struct PrintScores {
 /// Any bad row fails the whole file with its line number and column.
 pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> Result<PrintScores, DatasetError> {
     let t = super::csv::read_strings(bytes, file)?;
+    ingest_rows(&t, &(0..t.rows.len()).collect::<Vec<_>>(), file, manifest, scale_max)
+}
+
+/// [`ingest`] on the data rows `which` of a read table (line numbers stay the file's).
+fn ingest_rows(t: &StringTable, which: &[usize], file: &str, manifest: &Manifest, scale_max: f64) -> Result<PrintScores, DatasetError> {
     if t.find("line").is_some() && t.find("band").is_some() {
         return Err(DatasetError::parse(file, 1, "band", "give `line` or `band`, not both"));
     }
@@ -42,8 +50,8 @@ pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> 
     let k_tol = if step.is_finite() { step / 2.0 } else { 1e-9 };
     let mut raters: Vec<String> = Vec::new();
     let mut cells: BTreeMap<(usize, usize), f64> = BTreeMap::new();
-    for (r, row) in t.rows.iter().enumerate() {
-        let at = r + 2;
+    for &r in which {
+        let (row, at) = (&t.rows[r], r + 2);
         let get = |c: usize, name: &str| row.get(c).cloned().flatten().ok_or_else(|| DatasetError::parse(file, at, name, "empty"));
         let line_s = get(line_col, &line_name)?;
         let line: usize = line_s.parse().map_err(|_| DatasetError::parse(file, at, &line_name, format!("`{line_s}` is not a line number")))?;
@@ -85,7 +93,45 @@ pub fn ingest(bytes: &[u8], file: &str, manifest: &Manifest, scale_max: f64) -> 
     let table = ScoreTable { k: manifest.regions.iter().map(|g| g.k).collect(), scores };
     let (w, n) = kendall_w(&table).map(|(w, n)| (Some(w), n)).unwrap_or((None, 0));
     let best = best_k(&table)?;
-    Ok(PrintScores { raters, table, rows: t.rows.len(), kendall_w: w, kendall_lines: n, best })
+    Ok(PrintScores { raters, table, rows: which.len(), kendall_w: w, kendall_lines: n, best })
+}
+
+/// One (speed, acceleration) cell of a scored matrix.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellScores {
+    pub pattern: usize,
+    pub speed_mm_s: f64,
+    pub accel_mm_s2: f64,
+    pub flow_mm3_s: f64,
+    pub scores: PrintScores,
+}
+
+/// Scores of a calibration matrix: the single-print schema plus a `pattern`
+/// column (1-based, as in the matrix manifest and printed above each block);
+/// each pattern is ingested as its own print. Patterns nobody scored are left out;
+/// a bad row fails the whole file with its line number and column.
+pub fn ingest_matrix(bytes: &[u8], file: &str, manifest: &MatrixManifest, scale_max: f64) -> Result<Vec<CellScores>, DatasetError> {
+    let t = super::csv::read_strings(bytes, file)?;
+    let pc = t
+        .find("pattern")
+        .ok_or_else(|| DatasetError::parse(file, 1, "pattern", "missing column `pattern` (a matrix's scores name the pattern of each line)"))?;
+    let mut by_pattern: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for (r, row) in t.rows.iter().enumerate() {
+        let v = row.get(pc).cloned().flatten().ok_or_else(|| DatasetError::parse(file, r + 2, "pattern", "empty"))?;
+        let p: usize = v.trim().parse().map_err(|_| DatasetError::parse(file, r + 2, "pattern", format!("`{v}` is not a pattern number")))?;
+        if !manifest.patterns.iter().any(|m| m.index == p) {
+            return Err(DatasetError::parse(file, r + 2, "pattern", format!("unknown pattern {p}: the matrix has 1–{}", manifest.patterns.len())));
+        }
+        by_pattern.entry(p).or_default().push(r);
+    }
+    by_pattern
+        .into_iter()
+        .map(|(p, rows)| {
+            let m = manifest.patterns.iter().find(|m| m.index == p).ok_or_else(|| DatasetError::parse(file, 1, "pattern", "unknown pattern"))?;
+            let scores = ingest_rows(&t, &rows, file, &m.manifest, scale_max)?;
+            Ok(CellScores { pattern: p, speed_mm_s: m.speed_mm_s, accel_mm_s2: m.accel_mm_s2, flow_mm3_s: m.flow_mm3_s, scores })
+        })
+        .collect()
 }
 
 /// Write a scores CSV (the format [`ingest`] reads) for a simulated or collected table.
@@ -109,6 +155,33 @@ mod tests {
 
     fn manifest() -> Manifest {
         write(&Printer::default(), &Calibration::default()).expect("default pattern").manifest
+    }
+
+    #[test]
+    fn matrix_scores_give_each_cell_its_vertex_and_agreement() {
+        let cal = Calibration { k_end: 0.1, k_step: 0.02, line: LinePattern { slow_len_mm: 10.0, ..LinePattern::default() }, ..Calibration::default() };
+        let g = crate::pa::matrix::write(&Printer { bed_mm: [350.0, 350.0], ..Printer::default() }, &cal, &[50.0, 150.0], &[1000.0, 4000.0]).expect("matrix");
+        // Pattern p peaks at K* = 0.051 + 0.004·p; scores 10 − 1000·(K − K*)² (an exact parabola,
+        // ≥ 7.4 on every line, so the fitted vertex is K* to rounding) from two raters one point apart.
+        let mut csv = String::from("pattern,line,rater,score\n");
+        for p in &g.manifest.patterns {
+            let best = 0.051 + 0.004 * p.index as f64;
+            for r in &p.manifest.regions {
+                let sc = 10.0 - 1000.0 * (r.k - best).powi(2);
+                csv += &format!("{},{},a,{sc}\n{},{},b,{}\n", p.index, r.index, p.index, r.index, sc - 1.0);
+            }
+        }
+        let cells = ingest_matrix(csv.as_bytes(), "m.csv", &g.manifest, 10.0).expect("scores");
+        assert_eq!(cells.len(), 4);
+        for c in &cells {
+            assert!((c.scores.best.k - (0.051 + 0.004 * c.pattern as f64)).abs() < 1e-9, "{c:?}");
+            assert_eq!(c.scores.kendall_w, Some(1.0));
+            assert!((c.flow_mm3_s - 0.096 * c.speed_mm_s).abs() < 1e-12);
+        }
+        // A row naming a pattern the matrix lacks fails with its line.
+        let bad = "pattern,line,rater,score\n1,1,a,5\n9,1,a,5\n";
+        let e = ingest_matrix(bad.as_bytes(), "m.csv", &g.manifest, 10.0).expect_err("unknown pattern");
+        assert!(e.to_string().contains("m.csv:3") && e.to_string().contains("pattern"), "{e}");
     }
 
     #[test]

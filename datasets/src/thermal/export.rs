@@ -140,13 +140,27 @@ pub fn klipper_pid(pid: &Pid, note: &str) -> Result<String, DatasetError> {
     Ok(format!("# {note} ({})\n[extruder]\ncontrol: pid\npid_Kp: {p:.3}\npid_Ki: {i:.3}\npid_Kd: {d:.3}\n", pid.rule))
 }
 
-/// `[extruder]` MPC block; fan transfer listed at 0, 25, 50, 75, 100 % fan.
+/// Filament diameter written in the Kalico MPC block, mm.
+pub const KALICO_FILAMENT_DIAMETER_MM: f64 = 1.75;
+/// Filament density written in the Kalico MPC block, g/cm³.
+pub const KALICO_FILAMENT_DENSITY_G_CM3: f64 = 1.25;
+
+/// `[extruder]` MPC block; fan transfer listed at 0, 25, 50, 75, 100 % fan;
+/// filament diameter, density and heat capacity whose product is Marlin's `H`.
 pub fn klipper_mpc(p: &MpcPhysics, note: &str) -> Result<String, DatasetError> {
     finite(&[("heater_power", p.heater_power_w), ("block_heat_capacity", p.block_heat_capacity_j_k), ("sensor_responsiveness", p.sensor_responsiveness)])?;
     let fan: Vec<String> =
         (0..5).map(|i| format!("{:.6}", p.ambient_transfer_w_k + (p.fan_ambient_transfer_w_k - p.ambient_transfer_w_k) * i as f64 / 4.0)).collect();
+    // Kalico's filament feed-forward uses only the product
+    // π(d/2)²/1000 · filament_density [g/cm³] · filament_heat_capacity [J/g/K] (J/K per mm,
+    // `klippy/extras/control_mpc.py` `_update_filament_const`): Marlin's H. fdmlab writes
+    // d = 1.75 mm and ρ = 1.25 g/cm³ (Kalico's PLA row, docs/MPC.md) and the c that makes
+    // the product H; Kalico multiplies it by the E axis velocity (mm of filament) whatever
+    // the real diameter.
+    let (d, rho) = (KALICO_FILAMENT_DIAMETER_MM, KALICO_FILAMENT_DENSITY_G_CM3);
+    let c = p.filament_heat_capacity_j_k_mm * 1000.0 / (std::f64::consts::PI * (d / 2.0).powi(2) * rho);
     Ok(format!(
-        "# {note}\n# Kalico / Danger-Klipper MPC (mainline Klipper has no MPC)\n[extruder]\ncontrol: mpc\nheater_power: {:.2}\ncooling_fan: fan\nblock_heat_capacity: {:.4}\nsensor_responsiveness: {:.6}\nambient_transfer: {:.6}\nfan_ambient_transfer: {}\n",
+        "# {note}\n# Kalico / Danger-Klipper MPC (mainline Klipper has no MPC)\n[extruder]\ncontrol: mpc\nheater_power: {:.2}\ncooling_fan: fan\nblock_heat_capacity: {:.4}\nsensor_responsiveness: {:.6}\nambient_transfer: {:.6}\nfan_ambient_transfer: {}\nfilament_diameter: {d}\nfilament_density: {rho}\nfilament_heat_capacity: {c:.6}\n",
         p.heater_power_w,
         p.block_heat_capacity_j_k,
         p.sensor_responsiveness,
@@ -214,6 +228,11 @@ mod tests {
         assert!(m306.contains("M306 E0 P20.00 C40.0000 R0.125000 A0.080000 F0.130000 H0.005600"), "{m306}");
         let k = klipper_mpc(&p, "twin").expect("klipper");
         assert!(k.contains("fan_ambient_transfer: 0.080000, 0.092500, 0.105000, 0.117500, 0.130000"), "{k}");
+        // Kalico's `_update_filament_const` on the written values gives M306's H (J/K per mm).
+        let val = |key: &str| k.lines().find_map(|l| l.strip_prefix(key)).and_then(|v| v.trim().parse::<f64>().ok()).expect(key);
+        let (d, rho, c) = (val("filament_diameter:"), val("filament_density:"), val("filament_heat_capacity:"));
+        let h = (d / 2.0) * (d / 2.0) * std::f64::consts::PI / 1000.0 * rho * c;
+        assert!((h - 0.0056).abs() < 1e-8, "{h}");
         assert!(mpc_physics_from_rates(&rates(), -1.0, 0.0).is_err());
     }
 

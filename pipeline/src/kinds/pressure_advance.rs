@@ -92,6 +92,17 @@ pub struct CalibrationSpec {
     pub spacing_mm: Option<f64>,
     #[serde(default)]
     pub band_mm: Option<f64>,
+    /// Adaptive-PA matrix: one lines pattern per (speed, acceleration) pair.
+    #[serde(default)]
+    pub matrix: Option<MatrixSpec>,
+}
+
+/// `matrix = { speeds = [50, 100], accels = [1000, 2000] }` (mm/s, mm/s²).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MatrixSpec {
+    pub speeds: Vec<f64>,
+    pub accels: Vec<f64>,
 }
 
 /// `[[prints]]`: a printed and scored calibration; unset fields come from `[calibration]`.
@@ -289,6 +300,7 @@ impl PaSpec {
             spacing_mm: c.spacing_mm,
             band_mm: c.band_mm,
             title: Some(format!("fdmlab {}", self.experiment.name)),
+            matrix: c.matrix.as_ref().filter(|_| p.is_none()).map(|m| (m.speeds.clone(), m.accels.clone())),
         })
     }
 
@@ -336,6 +348,16 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     stages.push(Stage::typed("gcode", 1, jobs.clone(), |_, jobs| {
         let mut out = StageOutput::default();
         for (i, j) in jobs.iter().enumerate() {
+            if j.calibration.matrix().is_some() {
+                // The matrix: one program per plate and the matrix manifest.
+                let g = j.calibration.write_matrix()?;
+                for (p, text) in g.plates.iter().enumerate() {
+                    out = out.add(&format!("calibration.p{}.gcode", p + 1), "text/x-gcode", text.clone().into_bytes());
+                }
+                out =
+                    out.add_json("calibration.json", &g.manifest)?.metric("plates", g.plates.len() as f64).metric("patterns", g.manifest.patterns.len() as f64);
+                continue;
+            }
             let g = j.calibration.write()?;
             let name = if i == 0 { "calibration".to_string() } else { format!("print-{i}") };
             out = out.add(&format!("{name}.gcode"), "text/x-gcode", g.text.into_bytes()).add_json(&format!("{name}.json"), &g.manifest)?;
