@@ -252,14 +252,22 @@ fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let twin = Twin::default();
     let cases = hidden::generate(&twin, &opts).map_err(|e| bad(e.to_string()))?;
     let config = json!({"options": opts, "twin": twin});
-    let files = fdmlab_datasets::discrepancy::hidden_set_files(
-        "thermal",
-        hidden::GENERATOR,
-        opts.seed,
-        &config,
-        cases.iter().map(|c| (fdmlab_datasets::thermal::csv::write(&c.data), &c.answer)),
-    )?;
-    write_hidden(&h.out, "thermal", hidden::GENERATOR, opts.seed, files, ctx)
+    let answers = cases.iter().map(|c| Ok((&c.data, serde_json::to_value(&c.answer)?))).collect::<anyhow::Result<Vec<_>>>()?;
+    write_thermal_set(&h.out, hidden::GENERATOR, opts.seed, &config, answers.into_iter(), ctx)
+}
+
+/// Write a thermal set of logs and answers (see [`write_hidden`]).
+fn write_thermal_set<'a>(
+    out: &Path,
+    generator: &str,
+    seed: u64,
+    config: &serde_json::Value,
+    cases: impl Iterator<Item = (&'a fdmlab_models::thermal::data::Experiment, serde_json::Value)>,
+    ctx: &Ctx,
+) -> anyhow::Result<()> {
+    let files =
+        fdmlab_datasets::discrepancy::hidden_set_files("thermal", generator, seed, config, cases.map(|(e, a)| (fdmlab_datasets::thermal::csv::write(e), a)))?;
+    write_hidden(out, "thermal", generator, seed, files, ctx)
 }
 
 /// Write a hidden-effect set (`cases/case-NNN.csv` + `answers.json`, see
@@ -280,14 +288,8 @@ fn mismatch_thermal(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_models::discrepancy::thermal_mismatch as tm;
     let opts = tm::MismatchOptions { seed: h.seed, samples: h.samples, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let cases = tm::generate(&opts).map_err(|e| bad(e.to_string()))?;
-    let files = fdmlab_datasets::discrepancy::hidden_set_files(
-        "thermal",
-        tm::GENERATOR,
-        opts.seed,
-        &opts,
-        cases.iter().map(|c| (fdmlab_datasets::thermal::csv::write(&c.data), &c.answer)),
-    )?;
-    write_hidden(&h.out, "thermal", tm::GENERATOR, opts.seed, files, ctx)
+    let answers = cases.iter().map(|c| Ok((&c.data, serde_json::to_value(&c.answer)?))).collect::<anyhow::Result<Vec<_>>>()?;
+    write_thermal_set(&h.out, tm::GENERATOR, opts.seed, &serde_json::to_value(&opts)?, answers.into_iter(), ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion`: the full set of
