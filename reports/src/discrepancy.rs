@@ -86,6 +86,53 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
         }
         doc.table(p);
     }
+    if !r.effects.is_empty() || !r.not_significant.is_empty() {
+        let mut g = Table::new(
+            "Does each effect earn its name? Contribution (with − without, final model) against the noise σ, confidence interval, physical range",
+            ["effect", "contribution / σ", "parameter", "value", "CI low", "CI high", "range", "verdict"],
+        );
+        let gated = r.effects.iter().filter_map(|e| e.gate.as_ref().map(|g| (e.name.as_str(), g, "named".to_string())));
+        let rejected = r.not_significant.iter().map(|n| (n.name.as_str(), &n.gate, "not significant".to_string()));
+        for (name, gate, verdict) in gated.chain(rejected) {
+            for p in &gate.parameters {
+                let range = format!("[{}, {}]", num(p.range_min, 3), num(p.range_max, 3));
+                g.push([
+                    name.to_string(),
+                    num(gate.contribution_rms / gate.noise_sigma, 3),
+                    p.name.clone(),
+                    num(p.value, 4),
+                    num(p.ci_low, 4),
+                    num(p.ci_high, 4),
+                    range,
+                    verdict.clone(),
+                ]);
+            }
+        }
+        doc.table(g);
+        let margin = r.effects.iter().filter_map(|e| e.gate.as_ref()).chain(r.not_significant.iter().map(|n| &n.gate)).next();
+        if let Some(gate) = margin {
+            doc.paragraph(format!(
+                "An effect is named only if its contribution is at least {}× the noise σ, its {} % confidence region (residual variance inflated for {} effective of {} samples) excludes zero and its parameters lie in their physical ranges.",
+                num(gate.margin, 2),
+                num(100.0 * gate.confidence, 3),
+                num(gate.effective_samples, 4),
+                o.measured.len()
+            ));
+        }
+    }
+    for n in &r.not_significant {
+        doc.paragraph(format!("`{}` was found but is not significant, and is not in the model: {}.", n.name, n.reasons.join("; ")));
+    }
+    if let Some(u) = &r.unexplained {
+        let spans: Vec<String> = u.windows.iter().map(|w| format!("{}–{} s", num(w.start_s, 4), num(w.end_s, 4))).collect();
+        doc.paragraph(format!(
+            "Unexplained: after the last effect the residual (RMS {} {unit}, {}× the noise σ) still leaves the noise band in {} window(s): {}. No candidate effect explains it.",
+            num(u.rms, 4),
+            num(u.rms_to_noise, 3),
+            u.windows.len(),
+            spans.join(", ")
+        ));
+    }
     let mut x = Table::new("Peak residual–input cross-correlation (95 % band ±1.96/√n)", ["input", "before", "lag", "after", "lag", "band"]);
     for (b, a) in o.cross_before.iter().zip(&o.cross_after) {
         x.push([b.input.clone(), num(b.peak, 3), b.peak_lag.to_string(), num(a.peak, 3), a.peak_lag.to_string(), num(b.band, 3)]);
@@ -98,7 +145,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
 mod tests {
     use super::*;
     use fdmlab_models::discrepancy::stats::Window;
-    use fdmlab_models::discrepancy::{Effect, Metrics, Outcome, Ranked};
+    use fdmlab_models::discrepancy::{Effect, Metrics, Outcome, Ranked, Unexplained};
     use std::collections::BTreeMap;
 
     #[test]
@@ -110,11 +157,14 @@ mod tests {
                     name: "fan_cooling".into(),
                     evidence: BTreeMap::new(),
                     parameters: BTreeMap::from([("fan_loss_1_s".to_string(), 0.00125)]),
+                    gate: None,
                 }],
                 ambiguous: vec![],
                 windows: vec![Window { start_s: 10.0, end_s: 30.0 }],
                 before: m(90.0, 2.0),
                 after: m(99.0, 0.5),
+                not_significant: vec![],
+                unexplained: Some(Unexplained { rms: 0.5, rms_to_noise: 5.0 / 3.0, windows: vec![Window { start_s: 40.0, end_s: 55.0 }] }),
             },
             ranking: vec![Ranked { name: "fan_cooling".into(), err: 0.9, p_value: 1e-20, delta_bic: -500.0, coefficients: vec![0.001] }],
             unit: "°C".into(),
@@ -134,5 +184,7 @@ mod tests {
         assert!(md.contains("covering 20.00 s (20.0 % of the log)"), "{md}");
         assert!(md.contains("2.000 → 0.5000 °C (75.0 % lower)"), "{md}");
         assert!(md.contains("`fan_cooling`"));
+        // 0.5 °C over σ = 0.3 °C; one window 40–55 s.
+        assert!(md.contains("RMS 0.5000 °C, 1.67× the noise σ) still leaves the noise band in 1 window(s): 40.00–55.00 s"), "{md}");
     }
 }

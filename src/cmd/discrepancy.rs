@@ -101,7 +101,7 @@ struct HiddenArgs {
     /// Domain.
     #[arg(long, value_enum)]
     domain: Domain,
-    /// Output folder (data/*.csv, answers.json, manifest.json).
+    /// Output folder (cases/case-NNN.csv, answers.json).
     #[arg(long)]
     out: PathBuf,
     /// Master seed.
@@ -116,6 +116,20 @@ struct HiddenArgs {
     /// Effect-free logs per noise level.
     #[arg(long = "null-cases", default_value_t = HiddenOptions::default().null_cases)]
     null_cases: usize,
+    /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal only: a
+    /// two-node plant of another form, integrated adaptively, with effects outside
+    /// the library; `--seeds` replicates, `--null-cases` effect-free cases per noise level).
+    #[arg(long, value_enum, default_value_t = SetKind::Hidden)]
+    set: SetKind,
+}
+
+/// Kind of generated set.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq)]
+enum SetKind {
+    /// The domain's own hidden-effect generator.
+    Hidden,
+    /// The model-form mismatch generator (thermal).
+    Mismatch,
 }
 
 fn bad(msg: impl Into<String>) -> anyhow::Error {
@@ -182,6 +196,8 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         ("after.rms".to_string(), r.after.rms),
         ("before.fit_percent".to_string(), r.before.fit_percent),
         ("after.fit_percent".to_string(), r.after.fit_percent),
+        ("not_significant".to_string(), r.not_significant.len() as f64),
+        ("unexplained_windows".to_string(), r.unexplained.as_ref().map_or(0.0, |u| u.windows.len() as f64)),
     ]);
     let params = json!({"domain": domain.name(), "data": names, "model": a.model, "select": opts, "read": read});
     let record = fdmlab_pipeline::runs::record_command(&store, "discrepancy", params, inputs, artifacts, metrics, wall)?;
@@ -198,7 +214,14 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         for (i, e) in r.effects.iter().enumerate() {
             let params: Vec<String> = e.parameters.iter().map(|(k, v)| format!("{k} = {v:.4e}")).collect();
-            s.push_str(&format!("{}. {}  ({})\n", i + 1, e.name, params.join(", ")));
+            let size = e.gate.as_ref().map_or(String::new(), |g| format!("; contribution {:.2}× noise", g.contribution_rms / g.noise_sigma));
+            s.push_str(&format!("{}. {}  ({}{size})\n", i + 1, e.name, params.join(", ")));
+        }
+        for n in &r.not_significant {
+            s.push_str(&format!("not significant: {} ({})\n", n.name, n.reasons.join("; ")));
+        }
+        if let Some(u) = &r.unexplained {
+            s.push_str(&format!("unexplained: residual RMS {:.4} ({:.2}× noise) in {} window(s)\n", u.rms, u.rms_to_noise, u.windows.len()));
         }
         for g in &r.ambiguous {
             s.push_str(&format!("ambiguous: {}\n", g.join(" / ")));
@@ -214,6 +237,12 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let domain: DomainName = h.domain.into();
+    if h.set == SetKind::Mismatch {
+        return match domain {
+            DomainName::Thermal => mismatch_thermal(&h, ctx),
+            _ => Err(bad(format!("--set mismatch exists for the thermal domain only, not {}", domain.name()))),
+        };
+    }
     match domain {
         DomainName::Motion => return hidden_motion(&h, ctx),
         DomainName::Extrusion => return hidden_extrusion(&h, ctx),
@@ -222,20 +251,27 @@ fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let opts = HiddenOptions { seed: h.seed, samples: h.samples, seeds: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let twin = Twin::default();
     let cases = hidden::generate(&twin, &opts).map_err(|e| bad(e.to_string()))?;
-    let mut files: Vec<(PathBuf, Vec<u8>)> =
-        cases.iter().map(|c| (h.out.join("data").join(format!("{}.csv", c.answer.case)), fdmlab_datasets::thermal::csv::write(&c.data).into_bytes())).collect();
-    let answers: Vec<&hidden::Answer> = cases.iter().map(|c| &c.answer).collect();
-    files.push((h.out.join("answers.json"), serde_json::to_vec_pretty(&answers)?));
-    let manifest = json!({"domain": domain.name(), "generator": hidden::GENERATOR, "seed": opts.seed, "options": opts, "twin": twin, "cases": cases.len()});
-    files.push((h.out.join("manifest.json"), serde_json::to_vec_pretty(&manifest)?));
-    let refs: Vec<(&Path, &[u8])> = files.iter().map(|(p, b)| (p.as_path(), b.as_slice())).collect();
-    write_files_atomic(&refs)?;
-    let value = json!({"out": h.out.display().to_string(), "cases": cases.len(), "seed": opts.seed, "generator": hidden::GENERATOR});
-    ctx.emit(&value, || format!("{} cases in {} (answers in answers.json, seed {})\n", cases.len(), h.out.display(), opts.seed));
-    Ok(())
+    let config = json!({"options": opts, "twin": twin});
+    let answers = cases.iter().map(|c| Ok((&c.data, serde_json::to_value(&c.answer)?))).collect::<anyhow::Result<Vec<_>>>()?;
+    write_thermal_set(&h.out, hidden::GENERATOR, opts.seed, &config, answers.into_iter(), ctx)
 }
 
-/// Write a motion or extrusion hidden-effect set (`cases/*.csv` + `answers.json`) and report it.
+/// Write a thermal set of logs and answers (see [`write_hidden`]).
+fn write_thermal_set<'a>(
+    out: &Path,
+    generator: &str,
+    seed: u64,
+    config: &serde_json::Value,
+    cases: impl Iterator<Item = (&'a fdmlab_models::thermal::data::Experiment, serde_json::Value)>,
+    ctx: &Ctx,
+) -> anyhow::Result<()> {
+    let files =
+        fdmlab_datasets::discrepancy::hidden_set_files("thermal", generator, seed, config, cases.map(|(e, a)| (fdmlab_datasets::thermal::csv::write(e), a)))?;
+    write_hidden(out, "thermal", generator, seed, files, ctx)
+}
+
+/// Write a hidden-effect set (`cases/case-NNN.csv` + `answers.json`, see
+/// `fdmlab_datasets::discrepancy::hidden_set_files`) and report it.
 fn write_hidden(out: &Path, domain: &str, generator: &str, seed: u64, files: Vec<(String, Vec<u8>)>, ctx: &Ctx) -> anyhow::Result<()> {
     let cases = files.len().saturating_sub(1);
     let paths: Vec<(PathBuf, Vec<u8>)> = files.into_iter().map(|(name, bytes)| (out.join(name), bytes)).collect();
@@ -244,6 +280,16 @@ fn write_hidden(out: &Path, domain: &str, generator: &str, seed: u64, files: Vec
     let value = json!({"out": out.display().to_string(), "domain": domain, "cases": cases, "seed": seed, "generator": generator});
     ctx.emit(&value, || format!("{cases} {domain} cases in {} (answers in answers.json, seed {seed})\n", out.display()));
     Ok(())
+}
+
+/// `fdmlab discrepancy hidden --domain thermal --set mismatch`: the model-form
+/// mismatch set of `models::discrepancy::thermal_mismatch`.
+fn mismatch_thermal(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::thermal_mismatch as tm;
+    let opts = tm::MismatchOptions { seed: h.seed, samples: h.samples, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
+    let cases = tm::generate(&opts).map_err(|e| bad(e.to_string()))?;
+    let answers = cases.iter().map(|c| Ok((&c.data, serde_json::to_value(&c.answer)?))).collect::<anyhow::Result<Vec<_>>>()?;
+    write_thermal_set(&h.out, tm::GENERATOR, opts.seed, &serde_json::to_value(&opts)?, answers.into_iter(), ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion`: the full set of

@@ -101,7 +101,7 @@ fn the_twin_grid_shows_fan_and_head_height_missing_from_the_heater_only_model() 
     }
     assert!(v["after"]["rms"].as_f64().expect("rms") < 0.5 * v["before"]["rms"].as_f64().expect("rms"), "{v}");
     let keys: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
-    assert_eq!(keys, ["after", "ambiguous", "before", "effects", "windows"]);
+    assert_eq!(keys, ["after", "ambiguous", "before", "effects", "not_significant", "unexplained", "windows"]);
     let md = std::fs::read_to_string(sb.path().join("rep/report.md")).expect("report");
     assert!(md.contains("`fan_cooling`") && sb.path().join("rep/plot-1.svg").is_file());
 }
@@ -185,15 +185,26 @@ fn hidden_command_keeps_the_answers_apart() {
     let v = sb.json(&["discrepancy", "hidden", "--domain", "thermal", "--out", "h", "--samples", "300", "--null-cases", "1", "--seeds", "1"]);
     // 2 noise levels × (1 null + 7 effects × 3 magnitudes) + 21 pairs.
     assert_eq!(v["cases"], 2 * (1 + 21) + 21);
-    let answers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/answers.json")).expect("answers")).expect("json");
-    let answers = answers.as_array().expect("list");
-    // One answer per case, kept apart from the data.
-    assert_eq!(answers.len(), 65);
-    let manifest: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/manifest.json")).expect("manifest")).expect("json");
-    assert_eq!(manifest["seed"], 11);
-    assert_eq!(manifest["generator"], hidden::GENERATOR);
-    for a in answers {
-        let csv = std::fs::read_to_string(sb.path().join(format!("h/data/{}.csv", a["case"].as_str().expect("case")))).expect("data file");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/answers.json")).expect("answers")).expect("json");
+    // Everything that reveals an answer is in answers.json: generator, seed, the twin, per case its effects.
+    assert_eq!((doc["domain"].as_str(), doc["seed"].as_u64(), doc["generator"].as_str()), (Some("thermal"), Some(11), Some(hidden::GENERATOR)));
+    assert_eq!(doc["config"]["twin"]["ambient_c"], 22.0);
+    let cases = doc["cases"].as_array().expect("list");
+    assert_eq!(cases.len(), 65);
+    // The folder holds answers.json and opaque data files only: cases/case-000.csv … case-064.csv.
+    let mut top: Vec<String> =
+        std::fs::read_dir(sb.path().join("h")).expect("dir").map(|e| e.expect("entry").file_name().to_string_lossy().into_owned()).collect();
+    top.sort();
+    assert_eq!(top, ["answers.json", "cases"]);
+    let mut files: Vec<String> =
+        std::fs::read_dir(sb.path().join("h/cases")).expect("dir").map(|e| e.expect("entry").file_name().to_string_lossy().into_owned()).collect();
+    files.sort();
+    assert_eq!(files, (0..65).map(|i| format!("case-{i:03}.csv")).collect::<Vec<_>>());
+    // The numbering is not the generator's order (nulls first, then effect by effect).
+    let first = cases.iter().position(|c| !c["answer"]["effects"].as_array().expect("effects").is_empty()).expect("an effect case");
+    assert!(first < 2, "{first}: effect-free cases come first in the generator's order");
+    for c in cases {
+        let csv = std::fs::read_to_string(sb.path().join("h").join(c["file"].as_str().expect("file"))).expect("data file");
         let header = csv.lines().next().expect("header");
         assert_eq!(header, "time_s,heater_duty,fan_duty,temperature_c,head_height,extrude_mm3_s,ambient_c");
     }

@@ -7,6 +7,7 @@ mod common;
 mod core_models;
 mod discrepancy;
 mod discrepancy_domains;
+mod discrepancy_mismatch;
 mod foundation;
 mod hbot;
 mod mlflow;

@@ -65,7 +65,8 @@ pub struct ExtrusionModel {
     pub params: ExtrusionParams,
 }
 
-/// Starting K of the base fit: the source's PLA/Bowden value at 0.2 mm (0.63 s).
+/// Fallback starting K of the base fit: the source's PLA/Bowden value at 0.2 mm
+/// (0.63 s), used only where the data's own estimate ([`start_k`]) fails.
 pub const START_K_S: f64 = 0.63;
 
 impl ExtrusionModel {
@@ -123,6 +124,16 @@ impl ExtrusionEffect {
         }
     }
 
+    /// Documented physical range of the term's parameter: a shear-thinning melt stores
+    /// less than linearly with flow (K₂ ≤ 0; power-law flow, Bird, Armstrong & Hassager
+    /// 1987, ch. 4); slip can only lose filament (σ ≥ 0).
+    pub fn range(self) -> (f64, f64) {
+        match self {
+            ExtrusionEffect::NonlinearPressure => (f64::NEG_INFINITY, 0.0),
+            ExtrusionEffect::FilamentSlip => (0.0, f64::INFINITY),
+        }
+    }
+
     /// The term's value in `p`.
     pub fn get(self, p: &ExtrusionParams) -> f64 {
         match self {
@@ -137,6 +148,26 @@ impl ExtrusionEffect {
             ExtrusionEffect::NonlinearPressure => p.k2_s2_per_mm3 = v,
             ExtrusionEffect::FilamentSlip => p.slip_per_s = v.abs(),
         }
+    }
+}
+
+/// Starting K of the base fit, from the data: the stored volume
+/// `V(t) = ∫(Q_feed − Q_out) dt` (trapezoids) is `K·Q_out` in the linear model, so
+/// `K = Σ V·Q_out / Σ Q_out²` (least squares, an equation-error fit). Falls back to the
+/// source's value [`START_K_S`] when that is not a positive time below 20 s.
+pub fn start_k(data: &ExtrusionData) -> f64 {
+    let (mut v, mut vq, mut qq) = (0.0, 0.0, 0.0);
+    for k in 1..data.t_s.len() {
+        let dt = data.t_s[k] - data.t_s[k - 1];
+        v += 0.5 * dt * ((data.feed_mm3_s[k] - data.flow_mm3_s[k]) + (data.feed_mm3_s[k - 1] - data.flow_mm3_s[k - 1]));
+        vq += v * data.flow_mm3_s[k];
+        qq += data.flow_mm3_s[k] * data.flow_mm3_s[k];
+    }
+    let k = vq / qq;
+    if k.is_finite() && k > 0.0 && k < 20.0 {
+        k
+    } else {
+        START_K_S
     }
 }
 
@@ -217,7 +248,7 @@ impl Domain for ExtrusionDomain {
         vec![("feed_mm3_s".to_string(), self.data.feed_mm3_s.clone())]
     }
     fn fit_base(&self) -> Result<ExtrusionModel, ModelError> {
-        identify(&self.data, &ExtrusionModel::base(), &[])
+        identify(&self.data, &ExtrusionModel { params: ExtrusionParams::linear(start_k(&self.data)) }, &[])
     }
     fn simulate(&self, model: &ExtrusionModel) -> Vec<f64> {
         model.predict(&self.data).unwrap_or_else(|_| vec![f64::NAN; self.data.t_s.len()])
@@ -231,6 +262,34 @@ impl Domain for ExtrusionDomain {
             cols.extend(candidate_column(model, &self.data, e, &y).ok());
         }
         cols
+    }
+    fn own_columns(&self, model: &ExtrusionModel) -> Vec<Vec<f64>> {
+        model.predict(&self.data).and_then(|y| base_columns(model, &self.data, &y)).unwrap_or_default()
+    }
+    fn effect_columns(&self, model: &ExtrusionModel, effect: &str) -> Vec<super::EffectParameter> {
+        let (Some(e), Ok(y)) = (ExtrusionEffect::from_name(effect), model.predict(&self.data)) else {
+            return Vec::new();
+        };
+        let value = e.get(&model.params);
+        let sim = |v: f64| {
+            let mut m = *model;
+            e.set(&mut m.params, v);
+            self.simulate(&m)
+        };
+        let column = super::gate::sensitivity(value, 0.01 * e.scale(model, &self.data), sim, &y);
+        vec![super::EffectParameter { name: e.parameter_name().to_string(), value, column, magnitude: true, range: e.range() }]
+    }
+    fn without(&self, model: &ExtrusionModel, effect: &str) -> ExtrusionModel {
+        let mut m = *model;
+        if let Some(e) = ExtrusionEffect::from_name(effect) {
+            e.set(&mut m.params, 0.0);
+        }
+        m
+    }
+    fn remove(&self, model: &ExtrusionModel, effect: &str) -> Result<ExtrusionModel, ModelError> {
+        let m = self.without(model, effect);
+        let effects: Vec<ExtrusionEffect> = ExtrusionEffect::ALL.into_iter().filter(|x| x.is_on(&m.params)).collect();
+        identify(&self.data, &m, &effects)
     }
     fn candidates(&self, model: &ExtrusionModel) -> Vec<Candidate> {
         let Ok(y) = model.predict(&self.data) else {

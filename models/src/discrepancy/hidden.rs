@@ -55,7 +55,8 @@ impl Default for HiddenOptions {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Answer {
-    /// Case name (also the data file's stem).
+    /// Case name (the effects and the case's index in the generator's order; the
+    /// hand-out's file name is opaque, see `discrepancy hidden`).
     pub case: String,
     /// Effects switched on.
     pub effects: Vec<String>,
@@ -196,7 +197,7 @@ pub fn generate(twin: &Twin, opts: &HiddenOptions) -> Result<Vec<HiddenCase>, Mo
             let seed = opts.seed.wrapping_mul(1_000_003).wrapping_add(i as u64 * 7919 + s);
             let mut data = drives(opts.samples, opts.dt_s, twin.ambient_c, seed);
             let label = if effects.is_empty() { "none".to_string() } else { effects.iter().map(|(e, _)| *e).collect::<Vec<_>>().join("+") };
-            let name = format!("case-{i:03}-{label}");
+            let name = format!("{label}-{i:03}");
             data.name = name.clone();
             let mut truth = base.clone();
             let mut contribution = BTreeMap::new();

@@ -25,6 +25,10 @@
 //! - `augment`: the model with one effect added, re-identified by simulation
 //!   (the linear coefficients of the selection are the starting guess);
 //! - `effect_parameters`: the named parameters of an effect in a model;
+//! - for [`gate`]: `own_columns` (sensitivities to the base parameters alone),
+//!   `effect_columns` (an effect's parameters, their sensitivities per unit and
+//!   documented physical ranges), `without` (the effect switched off, nothing
+//!   refitted) and `remove` (switched off, the rest re-identified);
 //! - optionally `fitted_parameters` (a refit that frees more than its columns),
 //!   `rivals` (nested effects refitted beside one whenever it contends) and
 //!   `join` (an effect masked by a named one, refitted jointly with it).
@@ -38,18 +42,25 @@
 //! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
 //! else they are reported `ambiguous`; when no further effect passes but the
 //! residual still leaves the noise band, one joint refit of a masked effect
-//! (`join`); finally everything is recomputed on the augmented model.
+//! (`join`); then every named effect must earn its name at the final model
+//! ([`gate`]: contribution against the noise, confidence region excluding zero,
+//! physical range) or is refitted out and listed `not_significant`; finally
+//! everything is recomputed on the augmented model and a residual still outside
+//! the noise band is reported `unexplained`.
 //! [`Report`] serialises to exactly the JSON of the command's stdout.
 
 pub mod extrusion;
+pub mod gate;
 pub mod hidden;
 pub mod motion;
 pub mod select;
 pub mod simfit;
 pub mod stats;
 pub mod thermal;
+pub mod thermal_mismatch;
 
 use crate::{nonfinite, ModelError};
+pub use gate::{EffectParameter, Gate};
 pub use select::{Candidate, Ranked, SelectOptions, Selection};
 use serde::{Deserialize, Serialize};
 use stats::{CrossCorrelation, Window};
@@ -82,6 +93,16 @@ pub trait Domain {
     fn candidates(&self, model: &Self::Model) -> Vec<Candidate>;
     /// `model` plus `effect`, re-identified by simulation.
     fn augment(&self, model: &Self::Model, effect: &Ranked) -> Result<Self::Model, ModelError>;
+    /// Output sensitivities to the base model's own parameters only (no effects):
+    /// the nuisance columns of the effects' confidence intervals ([`gate`]).
+    fn own_columns(&self, model: &Self::Model) -> Vec<Vec<f64>>;
+    /// The parameters of `effect` in `model` with their output sensitivities (per unit
+    /// of the parameter) and documented physical ranges ([`gate`]).
+    fn effect_columns(&self, model: &Self::Model, effect: &str) -> Vec<EffectParameter>;
+    /// `model` with `effect` switched off, nothing refitted (its contribution, [`gate`]).
+    fn without(&self, model: &Self::Model, effect: &str) -> Self::Model;
+    /// `model` without `effect`, every remaining parameter re-identified by simulation.
+    fn remove(&self, model: &Self::Model, effect: &str) -> Result<Self::Model, ModelError>;
     /// Named parameters of `effect` in `model` (units in the names).
     fn effect_parameters(&self, model: &Self::Model, effect: &str) -> BTreeMap<String, f64>;
     /// Effects nested with `effect` (one is a limit of the other) whose linearisations
@@ -126,6 +147,38 @@ pub struct Effect {
     /// Its identified parameters (units in the names).
     #[serde(with = "nonfinite::map")]
     pub parameters: BTreeMap<String, f64>,
+    /// Why it earns its name at the final model: contribution against the noise,
+    /// confidence intervals, physical ranges ([`gate`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gate: Option<Gate>,
+}
+
+/// An effect the selection found but that failed [`gate`]: not in the model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NotSignificant {
+    /// Effect name.
+    pub name: String,
+    /// One sentence per failed test.
+    pub reasons: Vec<String>,
+    /// The tests, at the model that still held it.
+    pub gate: Gate,
+    /// Its parameters there.
+    #[serde(with = "nonfinite::map")]
+    pub parameters: BTreeMap<String, f64>,
+}
+
+/// A residual still outside the noise band after the last effect: what no named
+/// effect explains.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Unexplained {
+    /// RMS of the final residual, data unit.
+    #[serde(with = "nonfinite::scalar")]
+    pub rms: f64,
+    /// That RMS over the noise σ.
+    #[serde(with = "nonfinite::scalar")]
+    pub rms_to_noise: f64,
+    /// Where the final residual leaves the noise band.
+    pub windows: Vec<Window>,
 }
 
 /// The command's JSON: effects added (most important first), ambiguous
@@ -143,6 +196,13 @@ pub struct Report {
     pub before: Metrics,
     /// The augmented model.
     pub after: Metrics,
+    /// Effects found but failing the size, confidence or range test ([`gate`]),
+    /// not in the model (which was refitted without them).
+    #[serde(default)]
+    pub not_significant: Vec<NotSignificant>,
+    /// The final residual where it still leaves the noise band; `null` if nowhere.
+    #[serde(default)]
+    pub unexplained: Option<Unexplained>,
 }
 
 /// Everything a run computed: the [`Report`] plus the series and tables the
@@ -268,7 +328,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
                     if let Some(gap) = gap {
                         ev.insert("delta_bic_vs_rival".into(), gap);
                     }
-                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name) });
+                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name), gate: None });
                     current = m;
                     r_cur = r1;
                 }
@@ -290,7 +350,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
                     let (r, m, r1, d) = fits.swap_remove(0);
                     let mut ev = evidence(r, &r_cur, &r1, d);
                     ev.insert("delta_bic_vs_rival".into(), gap);
-                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name) });
+                    effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: domain.effect_parameters(&m, &r.name), gate: None });
                     current = m;
                     r_cur = r1;
                 }
@@ -320,22 +380,53 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
         if let Some((r, m, r1, d)) = best {
             let mut ev = evidence(r, &r_cur, &r1, d);
             ev.insert("joined".into(), 1.0);
-            effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new() });
+            effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });
             current = m;
             r_cur = r1;
         }
+    }
+    // Every named effect must earn its name at the final model (size, confidence,
+    // physics); the weakest failing one is dropped and the rest refitted, until all pass.
+    let mut not_significant = Vec::new();
+    while !effects.is_empty() {
+        let names: Vec<String> = effects.iter().map(|e| e.name.clone()).collect();
+        let gates = gate::check(domain, &current, &names, &y, sigma, opts.alpha);
+        let failing =
+            gates.iter().enumerate().filter(|(_, g)| !g.passed()).min_by(|a, b| a.1.contribution_rms.total_cmp(&b.1.contribution_rms)).map(|(i, _)| i);
+        let Some(i) = failing else {
+            for (e, g) in effects.iter_mut().zip(gates) {
+                e.gate = Some(g);
+            }
+            break;
+        };
+        let e = effects.remove(i);
+        let g = gates[i].clone();
+        not_significant.push(NotSignificant { name: e.name.clone(), reasons: g.reasons(), parameters: domain.effect_parameters(&current, &e.name), gate: g });
+        current = domain.remove(&current, &e.name).unwrap_or_else(|_| domain.without(&current, &e.name));
+        r_cur = residual(&y, &domain.simulate(&current));
     }
     // Every parameter was re-identified with each later effect: report the final values.
     for e in &mut effects {
         e.parameters = domain.effect_parameters(&current, &e.name);
     }
     let sim1 = domain.simulate(&current);
-    let report = Report { effects, ambiguous, windows: stats::windows(&r0, sigma, &time_s), before: metrics(&y, &sim0), after: metrics(&y, &sim1) };
+    let windows_after = stats::windows(&r_cur, sigma, &time_s);
+    let unexplained =
+        (!windows_after.is_empty()).then(|| Unexplained { rms: stats::rms(&r_cur), rms_to_noise: stats::rms(&r_cur) / sigma, windows: windows_after.clone() });
+    let report = Report {
+        effects,
+        ambiguous,
+        windows: stats::windows(&r0, sigma, &time_s),
+        before: metrics(&y, &sim0),
+        after: metrics(&y, &sim1),
+        not_significant,
+        unexplained,
+    };
     Ok(Outcome {
         ranking: ranking.unwrap_or_default(),
         unit: domain.unit().to_string(),
         noise_sigma: sigma,
-        windows_after: stats::windows(&r_cur, sigma, &time_s),
+        windows_after,
         cross_before: cross(&inputs, &r0),
         cross_after: cross(&inputs, &r_cur),
         residual_before: r0,

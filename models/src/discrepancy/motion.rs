@@ -169,6 +169,18 @@ impl MotionEffect {
         }
     }
 
+    /// Documented physical range of each parameter (as [`Self::parameter_names`]):
+    /// friction levels, viscous friction, compliance and play are ≥ 0 (a negative
+    /// viscous term would feed energy in); cogging's sine and cosine amplitudes take
+    /// either sign (its phase).
+    pub fn ranges(self) -> &'static [(f64, f64)] {
+        const POSITIVE: (f64, f64) = (0.0, f64::INFINITY);
+        match self {
+            MotionEffect::Cogging => &[(f64::NEG_INFINITY, f64::INFINITY), (f64::NEG_INFINITY, f64::INFINITY)],
+            _ => &[POSITIVE],
+        }
+    }
+
     /// The term's parameter values in `e`.
     pub fn get(self, e: &MotionEffects) -> Vec<f64> {
         match self {
@@ -461,6 +473,54 @@ impl Domain for MotionDomain {
             cols.extend(candidate_columns(model, &self.data, e, &raw).unwrap_or_default());
         }
         cols
+    }
+    fn own_columns(&self, model: &MotionModel) -> Vec<Vec<f64>> {
+        model.simulate_mm(&self.data).and_then(|raw| base_columns(model, &self.data, &raw)).unwrap_or_default()
+    }
+    fn effect_columns(&self, model: &MotionModel, effect: &str) -> Vec<super::EffectParameter> {
+        // Secant sensitivities over each parameter's scale (the selection's columns per
+        // unit): a stick-slip output is not differentiable at the scale of a small step.
+        let (Some(e), Ok(raw)) = (MotionEffect::from_name(effect), model.simulate_mm(&self.data)) else {
+            return Vec::new();
+        };
+        let Ok(cols) = candidate_columns(model, &self.data, e, &raw) else { return Vec::new() };
+        let mut out: Vec<super::EffectParameter> = e
+            .parameter_names()
+            .iter()
+            .zip(e.get(&model.effects))
+            .zip(e.scales(model))
+            .zip(cols)
+            .zip(e.ranges())
+            .map(|((((name, value), scale), col), range)| super::EffectParameter {
+                name: name.to_string(),
+                value,
+                column: col.iter().map(|v| v / scale).collect(),
+                magnitude: true,
+                range: *range,
+            })
+            .collect();
+        if e == MotionEffect::Stribeck {
+            // The Stribeck velocity is a shape (fitted beside the level), a nuisance here.
+            let v = model.effects.stribeck_v_m_s;
+            let mut m = *model;
+            m.effects.stribeck_v_m_s = 1.1 * v;
+            if let Ok(y) = m.simulate_mm(&self.data) {
+                let column = y.iter().zip(&raw).map(|(a, b)| (a - b) / (0.1 * v)).collect();
+                out.push(super::EffectParameter { name: "stribeck_v_m_s".into(), value: v, column, magnitude: false, range: (0.0, f64::INFINITY) });
+            }
+        }
+        out
+    }
+    fn without(&self, model: &MotionModel, effect: &str) -> MotionModel {
+        let mut m = *model;
+        if let Some(e) = MotionEffect::from_name(effect) {
+            e.set(&mut m.effects, &[0.0; 2][..e.parameter_names().len()]);
+        }
+        m
+    }
+    fn remove(&self, model: &MotionModel, effect: &str) -> Result<MotionModel, ModelError> {
+        let m = self.without(model, effect);
+        identify(&self.data, &m, &active_effects(&m))
     }
     fn candidates(&self, model: &MotionModel) -> Vec<Candidate> {
         let Ok(raw) = model.simulate_mm(&self.data) else {

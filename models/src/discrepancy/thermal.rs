@@ -30,6 +30,26 @@ use std::collections::BTreeMap;
 /// Names of the thermal candidate effects.
 pub const EFFECTS: [&str; 7] = ["fan_cooling", "radiation", "sensor_lag", "heater_saturation", "dead_time", "filament_load", "head_height"];
 
+/// Documented physical range of each effect's parameter (inclusive). Losses,
+/// conductances and delays are ≥ 0; a hotend thermistor's lag is seconds to a minute
+/// (≤ 120 s); a heater's dead time below a minute (≤ 60 s); the delivered duty
+/// `u − c·u²` must rise with `u` up to full duty, so `c ≤ 0.5`.
+pub const RANGES: [(&str, f64, f64); 7] = [
+    ("fan_cooling", 0.0, f64::INFINITY),
+    ("radiation", 0.0, f64::INFINITY),
+    ("sensor_lag", 0.0, 120.0),
+    ("heater_saturation", 0.0, 0.5),
+    ("dead_time", 0.0, 60.0),
+    ("filament_load", 0.0, f64::INFINITY),
+    ("head_height", 0.0, f64::INFINITY),
+];
+
+/// Loss rate of the base fit's fallback start (when the ARX guess fails), 1/s:
+/// Marlin's MPC defaults, block heat capacity 16.7 J/K and ambient transfer
+/// 0.068 W/K (`MPC_BLOCK_HEAT_CAPACITY`, `MPC_AMBIENT_XFER_COEFF`, Configuration.h),
+/// a block time constant of ~250 s — a documented prior, not a generator's value.
+pub const PRIOR_LOSS_1_S: f64 = 0.068 / 16.7;
+
 /// Decay length of the near-bed loss, head-height units (the twin's value).
 pub const NEAR_BED_SCALE: f64 = 15.0;
 
@@ -362,6 +382,23 @@ impl ThermalData {
         }
     }
 
+    /// Sensitivities to the first `count` packed parameters (the base's three, then
+    /// the effects present, in log coordinates) and the segments' free responses.
+    fn packed_columns(&self, model: &ThermalModel, count: usize) -> Vec<Vec<f64>> {
+        let y0 = self.sim(model);
+        let p0 = pack(model);
+        let mut cols: Vec<Vec<f64>> = (0..count.min(p0.len()))
+            .map(|j| {
+                let h = if j == 2 { 1e-3 } else { 1e-4 };
+                let mut p = p0.clone();
+                p[j] += h;
+                self.sim(&unpack(model, &p)).iter().zip(&y0).map(|(a, b)| (a - b) / h).collect()
+            })
+            .collect();
+        cols.extend(self.initial_state_columns(model));
+        cols
+    }
+
     /// Output-error fit of every free parameter of `start` (Levenberg–Marquardt).
     pub fn refit(&self, start: &ThermalModel) -> Result<ThermalModel, ModelError> {
         let y = self.measured();
@@ -370,6 +407,19 @@ impl ThermalData {
         let m = unpack(start, &lsq.params);
         m.check()?;
         Ok(m)
+    }
+
+    /// Starting guess where the ARX fit fails: ambient `ambient_c` (the coolest
+    /// reading, at most 25 °C), the loss rate of the documented prior
+    /// [`PRIOR_LOSS_1_S`], and the heating rate that holds the log's mean rise at its
+    /// mean duty in steady state, `r = g·mean(T − T_amb)/mean(u)`.
+    fn prior_guess(&self, ambient_c: f64) -> ThermalModel {
+        let all = || self.segments.iter();
+        let n = all().map(Experiment::len).sum::<usize>().max(1) as f64;
+        let rise = all().flat_map(|e| e.temperature_c.iter()).map(|t| t - ambient_c).sum::<f64>() / n;
+        let duty = all().flat_map(|e| e.heater_duty.iter()).sum::<f64>() / n;
+        let heat = PRIOR_LOSS_1_S * rise.max(1.0) / duty.max(1e-3);
+        ThermalModel::base(heat, PRIOR_LOSS_1_S, ambient_c)
     }
 
     /// Equation-error starting guess for the base model:
@@ -389,7 +439,7 @@ impl ThermalData {
         }
         let m = nalgebra::Matrix3::from_fn(|i, j| s[i][j]);
         let ymin = crate::metrics::nan_min(self.segments.iter().flat_map(|e| e.temperature_c.iter()).copied());
-        let fallback = ThermalModel::base(0.5, 0.002, ymin.min(25.0));
+        let fallback = self.prior_guess(ymin.min(25.0));
         let Some(x) = m.lu().solve(&nalgebra::Vector3::new(rows[0], rows[1], rows[2])) else { return fallback };
         let (a, b, c) = (x[0], x[1], x[2]);
         if !(a > 0.0 && a < 1.0 && b > 0.0) {
@@ -445,18 +495,27 @@ impl Domain for ThermalData {
     }
 
     fn base_columns(&self, model: &ThermalModel) -> Vec<Vec<f64>> {
+        self.packed_columns(model, pack(model).len())
+    }
+
+    fn own_columns(&self, model: &ThermalModel) -> Vec<Vec<f64>> {
+        self.packed_columns(model, 3)
+    }
+
+    fn effect_columns(&self, model: &ThermalModel, effect: &str) -> Vec<super::EffectParameter> {
+        let Some(v) = model.effect(effect) else { return Vec::new() };
         let y0 = self.sim(model);
-        let p0 = pack(model);
-        let mut cols: Vec<Vec<f64>> = (0..p0.len())
-            .map(|j| {
-                let h = if j == 2 { 1e-3 } else { 1e-4 };
-                let mut p = p0.clone();
-                p[j] += h;
-                self.sim(&unpack(model, &p)).iter().zip(&y0).map(|(a, b)| (a - b) / h).collect()
-            })
-            .collect();
-        cols.extend(self.initial_state_columns(model));
-        cols
+        let range = RANGES.iter().find(|r| r.0 == effect).map_or((0.0, f64::INFINITY), |r| (r.1, r.2));
+        let column = super::gate::sensitivity(v, probe(effect, self.dt()), |x| self.sim(&model.with(effect, Some(x))), &y0);
+        vec![super::EffectParameter { name: parameter_name(effect).to_string(), value: v, column, magnitude: true, range }]
+    }
+
+    fn without(&self, model: &ThermalModel, effect: &str) -> ThermalModel {
+        model.with(effect, None)
+    }
+
+    fn remove(&self, model: &ThermalModel, effect: &str) -> Result<ThermalModel, ModelError> {
+        self.refit(&model.with(effect, None))
     }
 
     fn candidates(&self, model: &ThermalModel) -> Vec<Candidate> {

@@ -150,7 +150,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             .metric("before.rms", r.before.rms)
             .metric("after.rms", r.after.rms)
             .metric("before.fit_percent", r.before.fit_percent)
-            .metric("after.fit_percent", r.after.fit_percent);
+            .metric("after.fit_percent", r.after.fit_percent)
+            .metric("not_significant", r.not_significant.len() as f64)
+            .metric("unexplained_windows", r.unexplained.as_ref().map_or(0.0, |u| u.windows.len() as f64));
         for (i, e) in r.effects.iter().enumerate() {
             out = out.metric(&format!("effect.{}.{}", i + 1, e.name), 1.0);
         }

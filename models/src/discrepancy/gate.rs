@@ -1,0 +1,245 @@
+//! Whether a named effect earns its name, at the final model, by three tests
+//! reported together (issue #27):
+//!
+//! 1. **Size.** Its contribution — the RMS of the final model simulated with it
+//!    minus the same model simulated without it (nothing refitted) — is at least
+//!    [`CONTRIBUTION_MARGIN`] times the noise σ estimated from the data.
+//! 2. **Confidence.** The `1 − alpha` confidence region of its magnitude
+//!    parameter(s) excludes zero: Wald intervals from the output sensitivities at
+//!    the final model (every base parameter and every named effect's parameters
+//!    in one Jacobian), the residual variance inflated by `n/n_eff` for its
+//!    autocorrelation ([`stats::effective_samples`]) and Student's t with
+//!    `n_eff − p` degrees of freedom (a joint F test for an effect with two
+//!    magnitude parameters, e.g. cogging's sine and cosine).
+//! 3. **Physics.** Every parameter lies in its documented physical range (the
+//!    domain's data, e.g. a shear-thinning `nonlinear_pressure` is ≤ 0, viscous
+//!    friction ≥ 0).
+
+use super::{stats, Domain};
+use crate::nonfinite;
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// Contribution of an effect, in units of the noise σ, below which it is not named.
+/// An effect smaller than the measurement noise changes no single reading visibly,
+/// and the σ estimate (second differences) and a model-form residual carry errors of
+/// tens of percent, hence 1.5 rather than 1. The criteria grade effects whose part
+/// the base model cannot absorb exceeds 3σ; the with/without contribution is at least
+/// that part, so a graded effect keeps a factor 2 of headroom. Fixed before any
+/// evaluation set was run.
+pub const CONTRIBUTION_MARGIN: f64 = 1.5;
+
+/// One parameter of an effect as the domain exposes it for the test.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectParameter {
+    /// Parameter name (unit in the name).
+    pub name: String,
+    /// Its value in the model.
+    pub value: f64,
+    /// Output sensitivity `∂ŷ/∂θ` at the model, per unit of the parameter.
+    pub column: Vec<f64>,
+    /// Whether zero switches the effect off (a level), not a shape (a Stribeck velocity).
+    pub magnitude: bool,
+    /// Documented physical range, inclusive.
+    pub range: (f64, f64),
+}
+
+/// One parameter's result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParameterCheck {
+    /// Parameter name.
+    pub name: String,
+    /// Fitted value.
+    #[serde(with = "nonfinite::scalar")]
+    pub value: f64,
+    /// Lower end of the `1 − alpha` confidence interval.
+    #[serde(with = "nonfinite::scalar")]
+    pub ci_low: f64,
+    /// Upper end.
+    #[serde(with = "nonfinite::scalar")]
+    pub ci_high: f64,
+    /// Physical range, lower end (`null`: unbounded).
+    #[serde(with = "nonfinite::scalar")]
+    pub range_min: f64,
+    /// Physical range, upper end (`null`: unbounded).
+    #[serde(with = "nonfinite::scalar")]
+    pub range_max: f64,
+    /// Whether `value` lies in the range.
+    pub in_range: bool,
+}
+
+/// The three tests of one effect.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Gate {
+    /// RMS of (final model with the effect − the same without it), data unit.
+    #[serde(with = "nonfinite::scalar")]
+    pub contribution_rms: f64,
+    /// Noise σ estimated from the data.
+    #[serde(with = "nonfinite::scalar")]
+    pub noise_sigma: f64,
+    /// [`CONTRIBUTION_MARGIN`].
+    pub margin: f64,
+    /// Confidence level of the intervals (`1 − alpha`).
+    pub confidence: f64,
+    /// Effective independent samples of the final residual.
+    #[serde(with = "nonfinite::scalar")]
+    pub effective_samples: f64,
+    /// Per parameter: value, interval, range.
+    pub parameters: Vec<ParameterCheck>,
+    /// Contribution ≥ margin·σ.
+    pub size_ok: bool,
+    /// The magnitude parameters' confidence region excludes zero.
+    pub interval_ok: bool,
+    /// Every parameter in its physical range.
+    pub range_ok: bool,
+}
+
+impl Gate {
+    /// All three tests pass.
+    pub fn passed(&self) -> bool {
+        self.size_ok && self.interval_ok && self.range_ok
+    }
+
+    /// Why it failed, one sentence per failed test (empty if it passed).
+    pub fn reasons(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if !self.size_ok {
+            out.push(format!(
+                "contribution {:.3e} is {:.2}× the noise σ {:.3e}, below the margin {}",
+                self.contribution_rms,
+                self.contribution_rms / self.noise_sigma,
+                self.noise_sigma,
+                self.margin
+            ));
+        }
+        if !self.interval_ok {
+            let cis: Vec<String> = self.parameters.iter().map(|p| format!("{} in [{:.3e}, {:.3e}]", p.name, p.ci_low, p.ci_high)).collect();
+            out.push(format!("its {:.0} % confidence region includes zero ({})", 100.0 * self.confidence, cis.join(", ")));
+        }
+        for p in self.parameters.iter().filter(|p| !p.in_range) {
+            out.push(format!("{} = {:.3e} is outside its physical range [{:.3e}, {:.3e}]", p.name, p.value, p.range_min, p.range_max));
+        }
+        out
+    }
+}
+
+/// Upper `alpha` quantile of F(d1, d2), by bisection on the survival function.
+pub fn f_quantile(alpha: f64, d1: f64, d2: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    while stats::f_sf(hi, d1, d2) > alpha && hi < 1e12 {
+        hi *= 2.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if stats::f_sf(mid, d1, d2) > alpha {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// `(JᵀJ)⁻¹` of the columns (scaled to unit norm, SVD pseudo-inverse), unscaled back.
+fn inverse_normal(cols: &[Vec<f64>]) -> DMatrix<f64> {
+    let p = cols.len();
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let scale: Vec<f64> = cols.iter().map(|c| dot(c, c).sqrt().max(f64::MIN_POSITIVE)).collect();
+    let a = DMatrix::from_fn(p, p, |i, j| dot(&cols[i], &cols[j]) / (scale[i] * scale[j]));
+    let inv = a.clone().pseudo_inverse(1e-12).unwrap_or_else(|_| DMatrix::from_element(p, p, f64::INFINITY));
+    DMatrix::from_fn(p, p, |i, j| inv[(i, j)] / (scale[i] * scale[j]))
+}
+
+/// The three tests for every effect in `named`, at `model` on the measured `y`
+/// (noise σ `sigma`), intervals at level `1 − alpha`.
+pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64], sigma: f64, alpha: f64) -> Vec<Gate> {
+    let sim = domain.simulate(model);
+    let r: Vec<f64> = y.iter().zip(&sim).map(|(a, b)| a - b).collect();
+    let n = r.len() as f64;
+    let params: Vec<Vec<EffectParameter>> = named.iter().map(|e| domain.effect_columns(model, e)).collect();
+    let mut cols = domain.own_columns(model);
+    let first = cols.len();
+    cols.extend(params.iter().flatten().map(|p| p.column.clone()));
+    let k = cols.len() as f64;
+    let n_eff = stats::effective_samples(&r).min(n);
+    let df = (n_eff - k).max(1.0);
+    let s2 = r.iter().map(|v| v * v).sum::<f64>() / (n - k).max(1.0) * (n / n_eff);
+    let cov = inverse_normal(&cols) * s2;
+    let t = f_quantile(alpha, 1.0, df).sqrt();
+    let mut at = first;
+    named
+        .iter()
+        .zip(&params)
+        .map(|(name, ps)| {
+            let without = domain.simulate(&domain.without(model, name));
+            let contribution_rms = stats::rms(&sim.iter().zip(&without).map(|(a, b)| a - b).collect::<Vec<_>>());
+            let idx: Vec<usize> = (at..at + ps.len()).collect();
+            at += ps.len();
+            let parameters: Vec<ParameterCheck> = ps
+                .iter()
+                .zip(&idx)
+                .map(|(p, &i)| {
+                    let se = cov[(i, i)].max(0.0).sqrt();
+                    ParameterCheck {
+                        name: p.name.clone(),
+                        value: p.value,
+                        ci_low: p.value - t * se,
+                        ci_high: p.value + t * se,
+                        range_min: p.range.0,
+                        range_max: p.range.1,
+                        in_range: p.value >= p.range.0 && p.value <= p.range.1,
+                    }
+                })
+                .collect();
+            // Joint Wald test of the magnitude parameters: θᵀΣ⁻¹θ/q against F(q, df).
+            let mags: Vec<usize> = ps.iter().zip(&idx).filter(|(p, _)| p.magnitude).map(|(_, &i)| i).collect();
+            let theta = DVector::from_iterator(mags.len(), ps.iter().filter(|p| p.magnitude).map(|p| p.value));
+            let sub = DMatrix::from_fn(mags.len(), mags.len(), |a, b| cov[(mags[a], mags[b])]);
+            let interval_ok = !mags.is_empty()
+                && sub.pseudo_inverse(1e-300).is_ok_and(|inv| {
+                    let q = mags.len() as f64;
+                    let w = (theta.transpose() * inv * &theta)[(0, 0)] / q;
+                    w.is_finite() && w > f_quantile(alpha, q, df)
+                });
+            Gate {
+                contribution_rms,
+                noise_sigma: sigma,
+                margin: CONTRIBUTION_MARGIN,
+                confidence: 1.0 - alpha,
+                effective_samples: n_eff,
+                size_ok: contribution_rms >= CONTRIBUTION_MARGIN * sigma,
+                interval_ok,
+                range_ok: parameters.iter().all(|p| p.in_range),
+                parameters,
+            }
+        })
+        .collect()
+}
+
+/// Forward-difference sensitivity column of a parameter at `value`:
+/// `(ŷ(θ + h) − ŷ(θ))/h`, `h` = 10⁻³ of |θ| (or of `floor` if larger), away from zero.
+pub fn sensitivity(value: f64, floor: f64, sim: impl Fn(f64) -> Vec<f64>, base: &[f64]) -> Vec<f64> {
+    let h = 1e-3 * value.abs().max(floor) * if value < 0.0 { -1.0 } else { 1.0 };
+    sim(value + h).iter().zip(base).map(|(a, b)| (a - b) / h).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f_quantiles_match_published_tables() {
+        // F(1, 10) 5 %: 4.965; F(2, 20) 1 %: 5.849 (Pearson & Hartley tables); t(∞) 2.5 % two-sided = 1.96.
+        assert!((f_quantile(0.05, 1.0, 10.0) - 4.9646).abs() < 1e-3);
+        assert!((f_quantile(0.01, 2.0, 20.0) - 5.849).abs() < 2e-3);
+        assert!((f_quantile(0.05, 1.0, 1e7).sqrt() - 1.95996).abs() < 1e-3);
+    }
+
+    #[test]
+    fn the_inverse_normal_matrix_gives_the_ols_variance() {
+        // Columns 1 and t over t = 0..9: (XᵀX)⁻¹ of [[10, 45], [45, 285]] has det 825.
+        let cols = vec![vec![1.0; 10], (0..10).map(f64::from).collect()];
+        let inv = inverse_normal(&cols);
+        assert!((inv[(0, 0)] - 285.0 / 825.0).abs() < 1e-12 && (inv[(1, 1)] - 10.0 / 825.0).abs() < 1e-12 && (inv[(0, 1)] + 45.0 / 825.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,140 @@
+//! The thermal discrepancy workflow on a model-form mismatch set (issue #27): logs
+//! from `discrepancy hidden --set mismatch` (a two-node plant with free convection
+//! ∝ ΔT^¼, forced convection ∝ fan^0.8, radiation, integrated by Dormand–Prince with
+//! error control), handed out blind (`cases/case-NNN.csv`) and graded from
+//! `answers.json` only, on seeds never used while developing.
+
+use crate::common::Sandbox;
+use fdmlab_models::discrepancy::{thermal, Report, SelectOptions};
+use fdmlab_models::parallel::par_map;
+
+/// Seeds of the graded sets. UNTOUCHED: they were not run while the workflow, its
+/// gate or this generator were developed (development used seed 1); the figures in
+/// docs/discrepancy.md come from these. Add new seeds, never swap them for ones
+/// that pass.
+const UNTOUCHED_SEEDS: [u64; 2] = [7301, 7302];
+
+/// One case's outcome against its answer.
+struct Graded {
+    file: String,
+    truth: Vec<String>,
+    outside: bool,
+    /// No feature switched on (the truth holds only what the base plant shows).
+    plain: bool,
+    graded: bool,
+    named: Vec<String>,
+    not_significant: usize,
+    unexplained: bool,
+    rms: (f64, f64),
+}
+
+fn grade_set(seed: u64) -> Vec<Graded> {
+    let sb = Sandbox::new();
+    let seed_s = seed.to_string();
+    sb.ok(&[
+        "discrepancy",
+        "hidden",
+        "--domain",
+        "thermal",
+        "--set",
+        "mismatch",
+        "--out",
+        "m",
+        "--seed",
+        &seed_s,
+        "--samples",
+        "2400",
+        "--seeds",
+        "1",
+        "--null-cases",
+        "2",
+    ]);
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("m/answers.json")).expect("answers")).expect("json");
+    assert_eq!(doc["generator"], thermal_mismatch_generator());
+    let cases: Vec<serde_json::Value> = doc["cases"].as_array().expect("cases").clone();
+    let dir = sb.path().join("m");
+    par_map(&cases, |c| {
+        let file = c["file"].as_str().expect("file").to_string();
+        let text = std::fs::read_to_string(dir.join(&file)).expect("case file");
+        let (log, _) = fdmlab_datasets::thermal::read_log(&text, &file, &Default::default()).expect("log");
+        let o = thermal::discrepancy(vec![log], None, &SelectOptions::default()).expect("workflow");
+        let a = &c["answer"];
+        let strings = |v: &serde_json::Value| -> Vec<String> { v.as_array().expect("list").iter().map(|s| s.as_str().expect("name").to_string()).collect() };
+        let r: &Report = &o.report;
+        let mut named: Vec<String> = r.effects.iter().map(|e| e.name.clone()).collect();
+        named.sort();
+        let mut truth = strings(&a["effects"]);
+        truth.sort();
+        Graded {
+            file,
+            truth,
+            outside: !a["outside"].is_null(),
+            plain: a["id"].as_str().expect("id").starts_with("none-"),
+            graded: a["graded"].as_bool().expect("graded"),
+            named,
+            not_significant: r.not_significant.len(),
+            unexplained: r.unexplained.is_some(),
+            rms: (r.before.rms, r.after.rms),
+        }
+    })
+}
+
+fn thermal_mismatch_generator() -> &'static str {
+    fdmlab_models::discrepancy::thermal_mismatch::GENERATOR
+}
+
+#[test]
+#[ignore = "Deliver 6 is not met on the mismatch set (measured once on the untouched seeds, 2026-12-03: right or honestly unexplained 19 of 29 graded, named exactly 10 of 20, false alarms 2 of 4, outside the library 4 of 5; docs/discrepancy.md); ~35 s: run with --ignored"]
+fn the_thermal_workflow_names_right_or_reports_unexplained_on_a_model_form_mismatch_set() {
+    let all: Vec<Graded> = UNTOUCHED_SEEDS.iter().flat_map(|s| grade_set(*s)).collect();
+    let listing = |g: &Graded| {
+        format!(
+            "{} truth {:?}{} named {:?} unexplained {} rms {:.3} -> {:.3}",
+            g.file,
+            g.truth,
+            if g.outside { " +outside" } else { "" },
+            g.named,
+            g.unexplained,
+            g.rms.0,
+            g.rms.1
+        )
+    };
+    let graded: Vec<&Graded> = all.iter().filter(|g| g.graded).collect();
+    let exact = |g: &Graded| g.named == g.truth;
+    // No wrong name: everything named is in the truth.
+    let no_wrong = |g: &Graded| g.named.iter().all(|n| g.truth.contains(n));
+    // In library: named exactly, or no wrong name and the rest reported unexplained.
+    // Outside the library: no wrong name and the residual reported unexplained.
+    let right = |g: &Graded| if g.outside { no_wrong(g) && g.unexplained } else { exact(g) || (no_wrong(g) && g.unexplained) };
+    let inside: Vec<&&Graded> = graded.iter().filter(|g| !g.outside && !g.plain).collect();
+    let named_exactly = inside.iter().filter(|g| exact(g)).count();
+    // Effect-free: no feature switched on; a false alarm names anything outside the truth.
+    let null: Vec<&&Graded> = graded.iter().filter(|g| g.plain).collect();
+    let false_alarms: Vec<&&&Graded> = null.iter().filter(|g| !no_wrong(g)).collect();
+    let outside: Vec<&&Graded> = graded.iter().filter(|g| g.outside).collect();
+    let wrong: Vec<&&Graded> = graded.iter().filter(|g| !right(g)).collect();
+    let not_halved: Vec<&&&Graded> = inside.iter().filter(|g| exact(g) && g.rms.1 > 0.5 * g.rms.0).collect();
+    let report = format!(
+        "thermal mismatch (seeds {UNTOUCHED_SEEDS:?}): {} cases, {} graded; named exactly {named_exactly} of {}; false alarms {} of {}; outside the library reported unexplained without a wrong name {} of {}; right or honestly unexplained {} of {}; not significant {}; unexplained {}; not halved {}\n{}",
+        all.len(),
+        graded.len(),
+        inside.len(),
+        false_alarms.len(),
+        null.len(),
+        outside.iter().filter(|g| right(g)).count(),
+        outside.len(),
+        graded.len() - wrong.len(),
+        graded.len(),
+        all.iter().map(|g| g.not_significant).sum::<usize>(),
+        all.iter().filter(|g| g.unexplained).count(),
+        not_halved.len(),
+        wrong.iter().map(|g| listing(g)).collect::<Vec<_>>().join("\n")
+    );
+    eprintln!("{report}");
+    assert!(inside.len() >= 8 && null.len() >= 2 && outside.len() >= 4, "set too small: {report}");
+    // Issue #27, Deliver 6 on mismatch sets: ≥ 90 % named exactly or honestly reported
+    // unexplained; ≤ 5 % false alarms; every exactly named case's RMS at least halved.
+    assert!(10 * wrong.len() <= graded.len(), "{report}");
+    assert!(20 * false_alarms.len() <= null.len(), "{report}");
+    assert!(not_halved.is_empty(), "{report}");
+}
