@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::features::heading_diff;
 use super::Junction;
+use crate::discrepancy::stats::median;
 use crate::ModelError;
 
 /// The prediction task.
@@ -348,21 +349,6 @@ impl Knn {
     }
 }
 
-/// Median of `v` (the mean of the two middle values when even; 0 when empty):
-/// what minimises the absolute error the MAE scores.
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
-}
-
 /// A k-d tree over points of equal dimension (Friedman, Bentley and Finkel
 /// 1977): median splits on the widest dimension, leaves of up to 16 points.
 #[derive(Debug, Clone)]
@@ -600,28 +586,6 @@ mod tests {
         assert!(pred[..80].iter().all(|p| p.angle_deg == 0.0));
         let s = score(&truth[80..end], &pred[80..end]);
         assert_eq!((s.angle_mae_deg, s.corner_f1, s.corner_auc), (0.0, Some(1.0), Some(1.0)));
-    }
-
-    #[test]
-    fn previous_layer_tuning_finds_the_radius_that_reaches_a_shifted_layer() {
-        // Each layer is the square (junctions 1 mm apart) shifted by (0.7, 0.7) mm:
-        // the nearest junction one layer down is 0.76 mm away, so a 0.5 mm radius
-        // finds nothing (no turn) and every radius from 1 mm finds the same match
-        // (the next nearest is 0.99 mm away and further along).
-        let moves: Vec<Move> = stacked_squares(20, 4)
-            .into_iter()
-            .map(|m| {
-                let d = 0.7 * f64::from(m.layer);
-                Move { x0: m.x0 + d, x1: m.x1 + d, y0: m.y0 + d, y1: m.y1 + d, ..m }
-            })
-            .collect();
-        let j = junctions(&moves);
-        let (best, trials) = tune_previous_layer(&[&j], &[Task::new(16), Task::new(32)]);
-        assert_eq!(trials.len(), PREVIOUS_LAYER_RADII_MM.len() * PREVIOUS_LAYER_TOLERANCES_DEG.len());
-        let mae = |p: PreviousLayer| trials.iter().find(|t| t.settings == p).map_or(f64::NAN, |t| t.mae_deg);
-        // The winner reaches the shifted layer, and beats a radius that cannot by over a degree.
-        assert!(best.max_dist_mm >= 1.0, "{best:?} {trials:?}");
-        assert!(mae(PreviousLayer { max_dist_mm: 0.5, heading_tol_deg: 10.0 }) > mae(best) + 1.0, "{trials:?}");
     }
 
     #[test]
