@@ -37,8 +37,11 @@ pub fn shipped_corpus() -> PathBuf {
 pub struct CorpusFile {
     /// File name inside the corpus folder (`….gcode.gz`).
     pub file: String,
-    /// `train` or `test` (held out: other slicer and printers).
+    /// `train`, `tune` or `test`, by model family (no family in two splits).
     pub split: String,
+    /// The model's family: its generator (an OpenSCAD kind, PrusaSlicer's sample
+    /// shapes, the arc programs); a model and its variants share one.
+    pub family: String,
     /// `prusa-slicer`, `slic3r`, `cura-engine` or `synthetic`.
     pub slicer: String,
     /// Slicer version string.

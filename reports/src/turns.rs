@@ -4,8 +4,9 @@
 //! computed from the run's numbers.
 
 use crate::{num, LinePlot, Report, Table};
+use fdmlab_models::turns::contenders::TRIVIAL;
 use fdmlab_models::turns::downstream::Downstream;
-use fdmlab_models::turns::evaluate::{FileEval, HorizonScores, MethodScore, Summary, NETWORK};
+use fdmlab_models::turns::evaluate::{FileEval, Gain, HorizonScores, MethodScore, Summary, NETWORK};
 use fdmlab_models::turns::net::TurnModel;
 
 /// Everything the report shows.
@@ -18,8 +19,13 @@ pub struct TurnsView<'a> {
     pub downstream: &'a [Downstream],
 }
 
+/// A baseline a claim may name: tuned and not trivial (`no-turn`, `planner` stay in the tables only).
+fn claimable(method: &str) -> bool {
+    method != NETWORK && !TRIVIAL.contains(&method)
+}
+
 fn best_baseline(h: &HorizonScores, key: impl Fn(&MethodScore) -> f64, lower_is_better: bool) -> Option<&MethodScore> {
-    let mut b: Vec<&MethodScore> = h.methods.iter().filter(|m| m.method != NETWORK && key(m).is_finite()).collect();
+    let mut b: Vec<&MethodScore> = h.methods.iter().filter(|m| claimable(&m.method) && key(m).is_finite()).collect();
     b.sort_by(|x, y| key(x).total_cmp(&key(y)));
     if lower_is_better {
         b.first().copied()
@@ -33,11 +39,11 @@ fn verdict(h: &HorizonScores) -> String {
     let mut s = format!("At H = {} ({} held-out anchors): ", h.horizon, h.rows);
     if let Some(b) = best_baseline(h, |m| m.mae_deg, true) {
         let word = if net.mae_deg < b.mae_deg { "beats" } else { "does not beat" };
-        s += &format!("the network's angle MAE is {}° and {word} the best baseline, {} ({}°); ", num(net.mae_deg, 3), b.method, num(b.mae_deg, 3));
+        s += &format!("the network's angle MAE is {}° and {word} the best tuned baseline, {} ({}°); ", num(net.mae_deg, 3), b.method, num(b.mae_deg, 3));
     }
     if let Some(b) = best_baseline(h, |m| m.f1, false) {
         let word = if net.f1 > b.f1 { "beats" } else { "does not beat" };
-        s += &format!("its corner F1 is {} and {word} the best baseline, {} ({}).", num(net.f1, 3), b.method, num(b.f1, 3));
+        s += &format!("its corner F1 is {} and {word} the best tuned baseline, {} ({}).", num(net.f1, 3), b.method, num(b.f1, 3));
     }
     s
 }
@@ -67,6 +73,23 @@ pub fn report(v: &TurnsView<'_>) -> Report {
     r.table(t);
     for h in &v.summary.horizons {
         r.paragraph(verdict(h));
+    }
+    if let Some(b) = &m.baselines {
+        let p = b.previous_layer;
+        let trial = |r: f64, t: f64| {
+            b.previous_layer_trials.iter().find(|x| x.settings.max_dist_mm == r && x.settings.heading_tol_deg == t).map_or(f64::NAN, |x| x.mae_deg)
+        };
+        r.paragraph(format!(
+            "Baselines are tuned as the network is, and claims name the best tuned baseline other than the trivial {}. The previous-layer match was tuned on the training files over radii {:?} mm × heading tolerances {:?}° by angle MAE (every horizon): {} mm and {}° won ({}° there; the untuned 3 mm, 30° gave {}°). kNN predicts the median turn of its {} neighbours. Every method's F1 threshold and call threshold per buffer were tuned on the same files as the network's.",
+            TRIVIAL.join(" and "),
+            fdmlab_models::turns::baselines::PREVIOUS_LAYER_RADII_MM,
+            fdmlab_models::turns::baselines::PREVIOUS_LAYER_TOLERANCES_DEG,
+            num(p.max_dist_mm, 3),
+            num(p.heading_tol_deg, 3),
+            num(trial(p.max_dist_mm, p.heading_tol_deg), 4),
+            num(trial(3.0, 30.0), 4),
+            fdmlab_models::turns::baselines::KnnParams::default().k,
+        ));
     }
     let mut per_file = Table::new(
         "Per held-out file: network vs previous-layer baseline (MAE °, F1)",
@@ -109,7 +132,6 @@ pub fn report(v: &TurnsView<'_>) -> Report {
             ["buffer (blocks)", "H", "call threshold", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "width error: planner (%)", "width error: with prediction (%)"],
         );
         let threshold = |d: &Downstream| v.model.call_threshold(d.blocks, d.horizon).unwrap_or(f64::NAN);
-        let shown = |t: f64| if t > 1.0 { "never".to_string() } else { num(t, 3) };
         for d in &network {
             t.push([
                 d.blocks.to_string(),
@@ -125,7 +147,7 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         }
         r.table(t);
         r.paragraph(
-            "The advance acts on the network's corner call when its probability reaches the call threshold of its buffer and horizon: the one with the lowest width error on the training files (a call rescues a late corner but a false one spoils width; \"never\" where no call paid there). The F1 of the metrics table uses the F1-optimal threshold instead.",
+            "The advance acts on the network's corner call when its probability reaches the call threshold of its buffer and horizon: the one with the lowest width error on the tuning files among those that raise no tuning file's width error above the buffer alone (a call rescues a late corner but a false one spoils width; \"never\" where no call paid there). The F1 of the metrics table uses the F1-optimal threshold on the same files instead.",
         );
         for d in &network {
             let verdict = if d.width_error_predicted < d.width_error_planner {
@@ -155,13 +177,26 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         let h0 = network[0].horizon;
         let rows: Vec<&Downstream> = v.downstream.iter().filter(|d| d.horizon == h0).collect();
         let mut t = Table::new(
-            format!("Line-width error (%) at H = {h0} with the advance driven by each method's corner calls (false calls' spoilt width included)"),
-            ["buffer (blocks)", "method", "too late", "false calls", "width error (%)"],
+            format!("Line-width error (%) at H = {h0} with the advance driven by each method's corner calls at its tuned call threshold (false calls' spoilt width included), and its gain over the buffer alone in points with a 95 % bootstrap interval over the {} held-out files (negative: better)", v.summary.files),
+            ["buffer (blocks)", "method", "call threshold", "too late", "false calls", "width error (%)", "gain (points)", "interval", "files worse"],
         );
         for d in &rows {
-            t.push([d.blocks.to_string(), d.method.clone(), d.late_predicted.to_string(), d.false_calls.to_string(), num(100.0 * d.width_error_predicted, 3)]);
+            let th = v.model.method_call_threshold(&d.method, d.blocks, d.horizon, f64::NAN).unwrap_or(f64::NAN);
+            let g = gain_of(v, d);
+            t.push([
+                d.blocks.to_string(),
+                d.method.clone(),
+                if th.is_nan() { "0.5 (untuned)".into() } else { shown(th) },
+                d.late_predicted.to_string(),
+                d.false_calls.to_string(),
+                num(100.0 * d.width_error_predicted, 3),
+                g.map_or(String::new(), |g| num(g.gain_pp, 3)),
+                g.map_or(String::new(), |g| format!("[{}, {}]", num(g.lo_pp, 3), num(g.hi_pp, 3))),
+                g.map_or(String::new(), |g| format!("{} of {}", g.files_worse, g.files)),
+            ]);
         }
         r.table(t);
+        harm_paragraphs(&mut r, v);
         let mut buffers: Vec<usize> = rows.iter().map(|d| d.blocks).collect();
         buffers.dedup();
         for b in buffers {
@@ -172,14 +207,61 @@ pub fn report(v: &TurnsView<'_>) -> Report {
                 continue;
             }
             let net = at.iter().find(|d| d.method == NETWORK);
-            let beats = net.is_some_and(|n| at.iter().all(|d| d.method == NETWORK || n.width_error_predicted < d.width_error_predicted));
+            let rival = at.iter().filter(|d| claimable(&d.method)).min_by(|x, y| x.width_error_predicted.total_cmp(&y.width_error_predicted));
+            let (Some(n), Some(rival)) = (net, rival) else { continue };
             r.paragraph(format!(
-                "With a {b}-block buffer, the lowest width error is {}'s ({}%); the network {} every baseline.",
+                "With a {b}-block buffer, the lowest width error is {}'s ({}%); the network ({}%) {} the best tuned baseline, {} ({}%).",
                 best.method,
                 num(100.0 * best.width_error_predicted, 3),
-                if beats { "beats" } else { "does not beat" }
+                num(100.0 * n.width_error_predicted, 3),
+                if n.width_error_predicted < rival.width_error_predicted { "beats" } else { "does not beat" },
+                rival.method,
+                num(100.0 * rival.width_error_predicted, 3),
             ));
         }
     }
     r
+}
+
+/// A call threshold as shown: "never" above every probability.
+fn shown(t: f64) -> String {
+    if t > 1.0 {
+        "never".to_string()
+    } else {
+        num(t, 3)
+    }
+}
+
+/// The gain over files of the method, buffer and horizon of `d`.
+fn gain_of<'a>(v: &'a TurnsView<'_>, d: &Downstream) -> Option<&'a Gain> {
+    v.summary.gains.iter().find(|g| g.method == d.method && g.blocks == d.blocks && g.horizon == d.horizon)
+}
+
+/// Do no harm: per buffer and horizon, whether the network's calls raise any
+/// held-out file's width error above the buffer alone, and its gain per file.
+fn harm_paragraphs(r: &mut Report, v: &TurnsView<'_>) {
+    let net: Vec<&Gain> = v.summary.gains.iter().filter(|g| g.method == NETWORK).collect();
+    if net.is_empty() {
+        return;
+    }
+    let mut t = Table::new(
+        "Do no harm: the network's line-width gain over the buffer alone per held-out file (points; negative: better)",
+        ["file", "buffer (blocks)", "H", "gain (points)"],
+    );
+    for g in &net {
+        for (f, pp) in v.files.iter().zip(&g.per_file_pp) {
+            t.push([f.file.clone(), g.blocks.to_string(), g.horizon.to_string(), num(*pp, 3)]);
+        }
+    }
+    r.table(t);
+    let worse: Vec<&&Gain> = net.iter().filter(|g| g.files_worse > 0).collect();
+    if worse.is_empty() {
+        r.paragraph(format!("On every held-out file, at every buffer and horizon, the network's calls leave the line-width error at or below the buffer alone ({} files × {} settings).", v.summary.files, net.len()));
+    } else {
+        let list: Vec<String> = worse
+            .iter()
+            .map(|g| format!("{} blocks at H = {}: {} of {} files, worst +{} points", g.blocks, g.horizon, g.files_worse, g.files, num(g.worst_file_pp, 3)))
+            .collect();
+        r.paragraph(format!("The network's calls raise the width error above the buffer alone on some held-out files: {}.", list.join("; ")));
+    }
 }

@@ -262,17 +262,38 @@ def expand_cura_placeholders(data, printer, settings):
     return CURA_PLACEHOLDER.sub(fill, data)
 
 
+# Splits by model family (issue #25): a family is one generator (an OpenSCAD
+# kind, PrusaSlicer's sample shapes, the arc programs), so no model or its
+# variants is in two splits; every slicer appears in every split but tune.
+SPLIT_OF_FAMILY = {
+    "polygon": "train", "curved_wall": "train", "overhang": "train", "prusa-sample-shape": "train", "arcs": "train",
+    "thin_features": "tune",
+    "bosses": "test", "text": "test",
+}
+
+
+def family_of(model):
+    """The family of a model spec: its OpenSCAD kind, or its generator."""
+    p = model["params"]
+    if "kind" in p:
+        return p["kind"]
+    if "shape" in p:
+        return "prusa-sample-shape"
+    return "arcs"
+
+
 def jobs_for(models, rng):
     jobs = []
     for m in models:
         # Each model: two PrusaSlicer runs (a vendor preset and a hand setting),
-        # one Slic3r run (train); one CuraEngine run on a vendor printer (held out).
+        # one Slic3r run, one CuraEngine run on a vendor printer; the split is the family's.
+        split = SPLIT_OF_FAMILY[family_of(m)]
         v = rng.choice(PRUSA_VENDOR)
-        jobs.append({"slicer": "prusa-slicer", "model": m, "vendor": v, "printer": v[1], "settings": {}, "split": "train"})
-        jobs.append({"slicer": "prusa-slicer", "model": m, "printer": "custom (bed 200×200, 0.4 mm nozzle)", "settings": rng.choice(PRUSA_SETTINGS), "split": "train"})
+        jobs.append({"slicer": "prusa-slicer", "model": m, "vendor": v, "printer": v[1], "settings": {}, "split": split})
+        jobs.append({"slicer": "prusa-slicer", "model": m, "printer": "custom (bed 200×200, 0.4 mm nozzle)", "settings": rng.choice(PRUSA_SETTINGS), "split": split})
         if "shape" not in m["params"]:
-            jobs.append({"slicer": "slic3r", "model": m, "printer": "Slic3r default (0.5 mm nozzle)", "settings": rng.choice(SLIC3R_SETTINGS), "split": "train"})
-        jobs.append({"slicer": "cura-engine", "model": m, "printer": rng.choice(CURA_PRINTERS), "settings": rng.choice(CURA_SETTINGS), "split": "test"})
+            jobs.append({"slicer": "slic3r", "model": m, "printer": "Slic3r default (0.5 mm nozzle)", "settings": rng.choice(SLIC3R_SETTINGS), "split": split})
+        jobs.append({"slicer": "cura-engine", "model": m, "printer": rng.choice(CURA_PRINTERS), "settings": rng.choice(CURA_SETTINGS), "split": split})
     return jobs
 
 
@@ -389,14 +410,15 @@ def build(out_dir, seed, n_arcs):
             except RuntimeError as e:
                 failures.append({"job": name, "error": str(e)[:500]})
                 continue
-            rec.update({"split": job["split"], "slicer": job["slicer"], "slicer_version": tools[job["slicer"]], "printer": job["printer"],
+            rec.update({"split": job["split"], "family": family_of(job["model"]), "slicer": job["slicer"], "slicer_version": tools[job["slicer"]], "printer": job["printer"],
                         "vendor_preset": list(job["vendor"]) if job.get("vendor") else None, "settings": job["settings"],
                         "model": {"name": job["model"]["name"], "source": job["model"]["source"], "params": job["model"]["params"]}})
             files.append(rec)
         for k in range(n_arcs):
             data, params = arc_program(rng, k)
             rec = store(out_dir, "arcs-%d--synthetic" % k, data)
-            rec.update({"split": "train" if k < n_arcs - 1 else "test", "slicer": "synthetic", "slicer_version": "fdmlab build.py v%d" % GENERATOR_VERSION,
+            arcs = {"params": params}
+            rec.update({"split": SPLIT_OF_FAMILY[family_of(arcs)], "family": family_of(arcs), "slicer": "synthetic", "slicer_version": "fdmlab build.py v%d" % GENERATOR_VERSION,
                         "printer": "any (G2/G3 firmware)", "vendor_preset": None, "settings": params, "model": {"name": "arcs-%d" % k, "source": "build.py arc_program", "params": params}})
             files.append(rec)
     manifest = {
@@ -404,8 +426,8 @@ def build(out_dir, seed, n_arcs):
         "seed": seed,
         "tools": tools,
         "reproducibility": "PrusaSlicer runs with --perimeter-generator classic (Arachne varies run to run on curved models); Slic3r with --threads 1; OpenSCAD STL facets sorted (unions come out in a varying order); CuraEngine given relative mesh paths (written into ;MESH:), its start/end G-code placeholders ({speed_travel}, {machine_depth}) filled from the printer definitions as Cura's frontend does; the slicers' date comments are replaced; gzip with mtime 0, no name, level 9",
-        "splits": {"train": "PrusaSlicer (vendor presets and hand settings, Marlin/Marlin 2/RepRapFirmware flavours) and Slic3r, synthetic arcs 0..n-2",
-                   "test": "CuraEngine on vendor printer definitions from the cura package (another slicer, other printers), the last synthetic arc program"},
+        "splits": {s: "by model family (no model or its variants in two splits), every slicer: " + ", ".join(sorted(f for f, v in SPLIT_OF_FAMILY.items() if v == s))
+                   for s in ("train", "tune", "test")},
         "failures": failures,
         "files": files,
     }

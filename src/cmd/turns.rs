@@ -19,6 +19,12 @@ pub enum TurnsCommand {
     /// Score the turn-prediction baselines on a G-code file at horizon H.
     Baselines(BaselinesArgs),
     /// Train the turn network on G-code files or folders (plain or .gz).
+    #[command(
+        mut_arg("hidden", |a| a.help(super::turns_net::train_help("Hidden layer widths, comma-separated", |p| p.hidden.iter().map(ToString::to_string).collect::<Vec<_>>().join(",")))),
+        mut_arg("epochs", |a| a.help(super::turns_net::train_help("Training epochs", |p| p.train.epochs.to_string()))),
+        mut_arg("batch", |a| a.help(super::turns_net::train_help("Mini-batch rows", |p| p.train.batch_size.to_string()))),
+        mut_arg("lr", |a| a.help(super::turns_net::train_help("Adam's initial learning rate", |p| p.train.learning_rate.to_string())))
+    )]
     Train(super::turns_net::TrainArgs),
     /// Score the network and every baseline on a G-code file at horizon H (MAE, F1, AUC).
     Eval(super::turns_net::EvalArgs),

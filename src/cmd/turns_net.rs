@@ -3,7 +3,7 @@
 
 use super::Ctx;
 use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
-use fdmlab_models::turns::downstream::{Downstream, Firmware};
+use fdmlab_models::turns::downstream::Downstream;
 use fdmlab_models::turns::evaluate;
 use fdmlab_models::turns::features::Task;
 use fdmlab_models::turns::net::{self, TurnModel};
@@ -24,12 +24,15 @@ pub struct TrainArgs {
     /// G-code files or folders (their *.gcode).
     #[arg(long, num_args = 1.., required = true)]
     pub gcode: Vec<PathBuf>,
-    /// Horizons H, junctions ahead (default 16,32,64).
-    #[arg(long, value_delimiter = ',')]
-    pub horizons: Option<Vec<usize>>,
-    /// Path after junction i + H in which a corner counts, mm (default 2).
-    #[arg(long)]
-    pub corner_window_mm: Option<f64>,
+    /// Horizons H, junctions ahead.
+    #[arg(long, value_delimiter = ',', default_values_t = Task::default().horizons)]
+    pub horizons: Vec<usize>,
+    /// Path after junction i + H in which a corner counts, mm (the baselines' window).
+    #[arg(long, default_value_t = Task::default().corner_window_mm)]
+    pub corner_window_mm: f64,
+    /// G-code files or folders every method's thresholds are tuned on (other model families; default: the training files).
+    #[arg(long, num_args = 1..)]
+    pub tune: Vec<PathBuf>,
     /// Planner buffers (blocks) the corner calls are tuned for.
     #[arg(long, value_delimiter = ',', default_values_t = evaluate::DEFAULT_BLOCKS)]
     pub blocks: Vec<usize>,
@@ -40,12 +43,18 @@ pub struct TrainArgs {
 /// Arguments of `fdmlab turns eval`.
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
-    pub file: PathBuf,
+    /// G-code files or folders (their *.gcode and *.gcode.gz), any slicer.
+    #[arg(num_args = 1.., required = true)]
+    pub files: Vec<PathBuf>,
     /// Run id (or prefix), model blob hash, or `latest` (the newest run with a turn model).
     #[arg(long, default_value = "latest")]
     pub model: String,
-    #[arg(long, default_value_t = 16)]
-    pub horizon: usize,
+    /// Horizons H (among the model's).
+    #[arg(long, value_delimiter = ',', default_values_t = [16])]
+    pub horizon: Vec<usize>,
+    /// Seed of the bootstrap over files.
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
     /// Planner buffers (blocks) of the line-width comparison.
     #[arg(long, value_delimiter = ',', default_values_t = evaluate::DEFAULT_BLOCKS)]
     pub blocks: Vec<usize>,
@@ -120,9 +129,13 @@ fn training_junctions(store: &Store, run: Option<&runs::RunRecord>) -> anyhow::R
     Ok(out)
 }
 
+/// Help of a `turns train` flag shared with `ka train`, with the turn network's default.
+pub fn train_help(what: &str, default: impl Fn(&fdmlab_models::nets::TrainParams) -> String) -> String {
+    format!("{what} (default {})", default(&net::default_params(7)))
+}
+
 fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
-    let d = Task::default();
-    let t = Task { horizons: a.horizons.clone().unwrap_or(d.horizons), corner_window_mm: a.corner_window_mm.unwrap_or(d.corner_window_mm) };
+    let t = Task { horizons: a.horizons.clone(), corner_window_mm: a.corner_window_mm };
     check_task(&t).map_err(Error::bad_input)?;
     check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
     Ok(t)
@@ -134,24 +147,31 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let task = task_of(&a)?;
     let params = a.train.params(net::default_params(a.train.seed))?;
     let files = gcode_files(&a.gcode)?;
+    let tune_files = if a.tune.is_empty() { vec![] } else { gcode_files(&a.tune)? };
     let store = ctx.store()?;
-    let mut data = vec![];
+    let (mut data, mut tune) = (vec![], vec![]);
     let mut inputs = vec![];
-    for f in &files {
+    for (f, tuning) in files.iter().map(|f| (f, false)).chain(tune_files.iter().map(|f| (f, true))) {
         let bytes = super::read_input(f)?;
-        inputs.push(InputRef { name: format!("file:{}", f.display()), hash: store.put(&bytes)? });
-        data.push(fdmlab_pipeline::kinds::turn_prediction::moves_of(&bytes, &f.display().to_string())?);
+        // `file:` inputs are the training files (kNN's references); `tune:` the tuning files.
+        inputs.push(InputRef { name: format!("{}:{}", if tuning { "tune" } else { "file" }, f.display()), hash: store.put(&bytes)? });
+        let moves = fdmlab_pipeline::kinds::turn_prediction::moves_of(&bytes, &f.display().to_string())?;
+        if tuning {
+            tune.push(moves)
+        } else {
+            data.push(moves)
+        }
     }
     let read_s = t0.elapsed().as_secs_f64();
     let mut bar = super::TrainBar::new(ctx, "turns train", 1, params.epochs());
     let t1 = Instant::now();
-    let model = evaluate::train_and_tune(&data, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
+    let model = evaluate::train_and_tune(&data, &tune, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
     let train_s = t1.elapsed().as_secs_f64();
     drop(bar);
     let json = turnnet::model_to_json(&model)?;
     let bpk = model.network()?.to_burnpack(&[])?;
-    let params_json =
-        serde_json::json!({"gcode": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(), "task": task, "settings": params, "blocks": a.blocks});
+    let names = |v: &[PathBuf]| v.iter().map(|f| f.display().to_string()).collect::<Vec<_>>();
+    let params_json = serde_json::json!({"gcode": names(&files), "tune": names(&tune_files), "task": task, "settings": params, "blocks": a.blocks});
     let metrics: BTreeMap<String, f64> = [("rows", model.rows as f64), ("junctions", model.junctions as f64), ("weight_bytes", model.weight_bytes() as f64)]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -171,7 +191,7 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let hash = Hash::of(&json).0;
     let value = serde_json::json!({
         "run": record.id, "model": hash, "files": files.len(), "junctions": model.junctions, "rows": model.rows,
-        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "call_thresholds": model.call_thresholds, "read_s": read_s, "train_s": train_s,
+        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "call_thresholds": model.call_thresholds, "baselines": model.baselines, "read_s": read_s, "train_s": train_s,
     });
     ctx.emit(&value, || {
         format!(
@@ -197,60 +217,107 @@ fn one_file(file: &std::path::Path) -> anyhow::Result<(Vec<Move>, Vec<Junction>)
     Ok((moves, j))
 }
 
-/// `fdmlab turns eval`
+fn scores_json(h: &evaluate::HorizonScores) -> serde_json::Value {
+    serde_json::json!({
+        "horizon": h.horizon, "rows": h.rows,
+        "methods": h.methods.iter().map(|m| serde_json::json!({"method": m.method, "mae_deg": finite(m.mae_deg), "f1": finite(m.f1), "auc": finite(m.auc)})).collect::<Vec<_>>(),
+    })
+}
+
+fn downstream_json(d: &Downstream) -> serde_json::Value {
+    serde_json::json!({
+        "blocks": d.blocks, "horizon": d.horizon, "method": d.method, "sharp": d.sharp, "late_buffer_alone": d.late_planner, "late": d.late_predicted,
+        "false_calls": d.false_calls, "width_error_buffer_alone": finite(d.width_error_planner), "width_error": finite(d.width_error_predicted),
+    })
+}
+
+/// Text of one file's (or the aggregate's) scores and line-width comparison.
+fn scores_text(s: &mut String, horizons: &[evaluate::HorizonScores], down: &[Downstream], gains: Option<&[evaluate::Gain]>) {
+    for h in horizons {
+        let _ = writeln!(
+            s,
+            "  H = {} ({} rows)
+    {:<16} {:>9} {:>6} {:>6}",
+            h.horizon, h.rows, "method", "MAE (°)", "F1", "AUC"
+        );
+        for m in &h.methods {
+            let _ = writeln!(s, "    {:<16} {:>9.2} {:>6.3} {:>6.3}", m.method, m.mae_deg, m.f1, m.auc);
+        }
+    }
+    let _ = writeln!(
+        s,
+        "  line-width error (%) with each method's calls driving the advance (buffer alone in brackets){}",
+        if gains.is_some() { "; gain over the buffer alone in points, 95 % interval over files" } else { "" }
+    );
+    let _ = writeln!(
+        s,
+        "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>14}{}",
+        "blocks",
+        "H",
+        "method",
+        "late",
+        "false calls",
+        "width",
+        if gains.is_some() { "   gain [interval] (files worse)" } else { "" }
+    );
+    for (k, d) in down.iter().enumerate() {
+        let gain = gains
+            .and_then(|g| g.get(k))
+            .map_or(String::new(), |g| format!("   {:+.2} [{:+.2}, {:+.2}] ({}/{})", g.gain_pp, g.lo_pp, g.hi_pp, g.files_worse, g.files));
+        let _ = writeln!(
+            s,
+            "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>14}{gain}",
+            d.blocks,
+            d.horizon,
+            d.method,
+            d.late_predicted,
+            d.false_calls,
+            format!("{:.1} ({:.1})", 100.0 * d.width_error_predicted, 100.0 * d.width_error_planner)
+        );
+    }
+}
+
+/// `fdmlab turns eval`: every file (plain or .gz, files or folders), one table
+/// each, then the aggregate over files with bootstrap intervals.
 pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let Loaded { model, hash, run } = load_model(&store, &a.model)?;
-    let slot = model.slot(a.horizon)?;
+    for &h in &a.horizon {
+        model.slot(h)?;
+    }
     check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
-    let (moves, j) = one_file(&a.file)?;
+    let paths = gcode_files(&a.files)?;
+    let mut files = vec![];
+    for p in &paths {
+        files.push((p.display().to_string(), one_file(p)?.0));
+    }
     let train = training_junctions(&store, run.as_ref())?;
-    let knn = if train.is_empty() { vec![] } else { fdmlab_models::turns::contenders::fit_knn(&train, &model.task)? };
-    let t = evaluate::truth(&j, &model.task, a.horizon);
-    let (preds, raw) = evaluate::predictions(&j, &model, a.horizon, knn.get(slot))?;
-    let scores: Vec<evaluate::MethodScore> = preds.iter().map(|p| evaluate::score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect();
-    // The line-width comparison at each buffer: every method's calls driving the advance.
-    let ex = fdmlab_models::turns::downstream::Extrusion::default();
-    let firmware: Vec<Firmware> =
-        a.blocks.iter().map(|&n| Ok(Firmware::new(&evaluate::reference_planner(n)?, &moves, &j, &ex))).collect::<anyhow::Result<_>>()?;
-    let down: Vec<Downstream> = evaluate::downstream_of_methods(&j, &firmware, &model, &preds, &raw)?.into_iter().map(|(_, _, d)| d).collect();
+    let (summary, per_file) = evaluate::evaluate(&files, &model, &train, &a.blocks, &a.horizon, a.seed)?;
     let value = serde_json::json!({
-        "file": a.file.display().to_string(), "model": hash.0, "horizon": a.horizon, "junctions": j.len(), "rows": t.angle_deg.len(),
-        "corners": t.corner.iter().filter(|c| **c).count(),
-        "methods": scores.iter().map(|m| serde_json::json!({"method": m.method, "mae_deg": finite(m.mae_deg), "f1": finite(m.f1), "auc": finite(m.auc)})).collect::<Vec<_>>(),
-        "downstream": down.iter().map(|d| serde_json::json!({
-            "blocks": d.blocks, "method": d.method, "sharp": d.sharp, "late_buffer_alone": d.late_planner, "late": d.late_predicted,
-            "false_calls": d.false_calls, "width_error_buffer_alone": finite(d.width_error_planner), "width_error": finite(d.width_error_predicted),
+        "model": hash.0, "horizons": a.horizon, "blocks": a.blocks, "seed": a.seed,
+        "files": per_file.iter().map(|f| serde_json::json!({
+            "file": f.file, "junctions": f.junctions,
+            "scores": f.horizons.iter().map(scores_json).collect::<Vec<_>>(),
+            "downstream": f.downstream.iter().map(downstream_json).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
+        "aggregate": {
+            "files": summary.files, "junctions": summary.junctions,
+            "scores": summary.horizons.iter().map(scores_json).collect::<Vec<_>>(),
+            "downstream": summary.downstream.iter().map(downstream_json).collect::<Vec<_>>(),
+            "gains": summary.gains.iter().map(|g| serde_json::json!({
+                "method": g.method, "blocks": g.blocks, "horizon": g.horizon, "gain_pp": g.gain_pp, "lo_pp": g.lo_pp, "hi_pp": g.hi_pp,
+                "files_worse": g.files_worse, "worst_file_pp": finite(g.worst_file_pp), "per_file_pp": g.per_file_pp,
+            })).collect::<Vec<_>>(),
+        },
     });
     ctx.emit(&value, || {
-        let mut s = format!(
-            "{}: {} junctions, H = {}, {} rows\n  {:<16} {:>9} {:>6} {:>6}\n",
-            a.file.display(),
-            j.len(),
-            a.horizon,
-            t.angle_deg.len(),
-            "method",
-            "MAE (°)",
-            "F1",
-            "AUC"
-        );
-        for m in &scores {
-            let _ = writeln!(s, "  {:<16} {:>9.2} {:>6.3} {:>6.3}", m.method, m.mae_deg, m.f1, m.auc);
+        let mut s = String::new();
+        for f in &per_file {
+            let _ = writeln!(s, "{}: {} junctions", f.file, f.junctions);
+            scores_text(&mut s, &f.horizons, &f.downstream, None);
         }
-        let _ = writeln!(s, "line-width error (%) with each method's calls driving the advance (buffer alone in brackets)");
-        let _ = writeln!(s, "  {:<8} {:<16} {:>6} {:>12} {:>10}", "blocks", "method", "late", "false calls", "width");
-        for d in &down {
-            let _ = writeln!(
-                s,
-                "  {:<8} {:<16} {:>6} {:>12} {:>10}",
-                d.blocks,
-                d.method,
-                d.late_predicted,
-                d.false_calls,
-                format!("{:.1} ({:.1})", 100.0 * d.width_error_predicted, 100.0 * d.width_error_planner)
-            );
-        }
+        let _ = writeln!(s, "aggregate: {} file(s), {} junctions", summary.files, summary.junctions);
+        scores_text(&mut s, &summary.horizons, &summary.downstream, Some(&summary.gains));
         s
     });
     Ok(())
@@ -347,7 +414,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     drop(bar);
     // What `turns train` adds: the call thresholds for the default buffers.
     let t = Instant::now();
-    evaluate::tune_calls(&mut model, &moves, &evaluate::DEFAULT_BLOCKS)?;
+    evaluate::tune_calls(&mut model, &data, &moves, &evaluate::DEFAULT_BLOCKS)?;
     let tune_s = t.elapsed().as_secs_f64();
     // Inference: burn in batches vs the exported C header on the same rows.
     let sample = &corpus[0];

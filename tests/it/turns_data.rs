@@ -17,9 +17,19 @@ fn every_corpus_file_streams_and_matches_its_manifest() {
     let (dir, m) = corpus();
     let slicers: std::collections::BTreeSet<&str> = m.files.iter().map(|f| f.slicer.as_str()).collect();
     assert_eq!(slicers.into_iter().collect::<Vec<_>>(), vec!["cura-engine", "prusa-slicer", "slic3r", "synthetic"]);
-    // Held out: only the other slicer (and one synthetic arc program).
-    assert!(m.files.iter().filter(|f| f.split == "test").all(|f| f.slicer == "cura-engine" || f.slicer == "synthetic"));
-    assert!(m.files.iter().filter(|f| f.split == "train").all(|f| f.slicer != "cura-engine"));
+    // Split by family: no family, and so no model, in two splits; every slicer in each.
+    let mut split_of = std::collections::BTreeMap::new();
+    for f in &m.files {
+        let model = f.model["name"].as_str().unwrap_or_default();
+        for key in [format!("family {}", f.family), format!("model {model}")] {
+            let seen = split_of.entry(key.clone()).or_insert(f.split.clone());
+            assert_eq!(*seen, f.split, "{key} is in two splits ({})", f.file);
+        }
+    }
+    for split in ["train", "tune", "test"] {
+        let slicers: std::collections::BTreeSet<&str> = m.files.iter().filter(|f| f.split == split).map(|f| f.slicer.as_str()).collect();
+        assert!(["prusa-slicer", "slic3r", "cura-engine"].iter().all(|s| slicers.contains(s)), "{split}: {slicers:?}");
+    }
     for f in &m.files {
         let path = dir.join(&f.file);
         let mut bytes = Vec::new();
@@ -29,6 +39,25 @@ fn every_corpus_file_streams_and_matches_its_manifest() {
         assert!(moves.len() > 100, "{}: {} moves", f.file, moves.len());
         // Layers never go back.
         assert!(moves.windows(2).all(|w| w[0].layer <= w[1].layer), "{}", f.file);
+    }
+}
+
+#[test]
+fn the_bundled_specs_splits_follow_the_manifests_families() {
+    // experiments/turn-prediction.toml trains, tunes and tests on files of the
+    // manifest's train, tune and test splits, so its families are disjoint.
+    let (_, m) = corpus();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments/turn-prediction.toml");
+    let spec: fdmlab_pipeline::kinds::turn_prediction::TurnSpec = fdmlab_pipeline::spec::SpecFile::load(&path).and_then(|s| s.parse()).expect("spec");
+    let mut families = std::collections::BTreeMap::new();
+    for (split, files) in [("train", &spec.data.train), ("tune", &spec.data.tune), ("test", &spec.data.test)] {
+        assert!(!files.is_empty(), "{split}");
+        for f in files {
+            let name = f.rsplit('/').next().expect("path");
+            let rec = m.files.iter().find(|r| r.file == name).unwrap_or_else(|| panic!("{name} not in the manifest"));
+            assert_eq!(rec.split, split, "{name}");
+            assert_eq!(*families.entry(rec.family.clone()).or_insert(split), split, "family {} in two splits", rec.family);
+        }
     }
 }
 

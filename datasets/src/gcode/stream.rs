@@ -4,8 +4,11 @@
 //! `P` extra full turns) linearised into chords within a sagitta tolerance, `G90`/`G91`,
 //! `M82`/`M83`, `G92`, `G28`, `G20`/`G21`, the modal `F`, `M204` (and Klipper's
 //! `SET_VELOCITY_LIMIT ACCEL=`), and the layer and feature markers of PrusaSlicer,
-//! Slic3r and Cura (`;LAYER_CHANGE`, `;LAYER:n`, `;TYPE:…`). Every other command is
-//! read (so a malformed one still fails with its file:line) and otherwise ignored.
+//! SuperSlicer, OrcaSlicer, Slic3r and Cura (`;LAYER_CHANGE`, `;LAYER:n`, `;TYPE:…`),
+//! Bambu Studio (`; CHANGE_LAYER`, `; FEATURE: …`) and Simplify3D (`; layer n, Z = …`,
+//! `; feature …`); a feature name is kept as written, known or not. Every other
+//! command is read (so a malformed one still fails with its file:line) and
+//! otherwise ignored.
 //!
 //! Moves are the XY moves in file order: lines that move only Z or E or set only
 //! F, and moves of zero XY length, yield nothing; nothing is merged. An arc yields
@@ -346,14 +349,15 @@ impl Interpreter {
 
     /// Layer and feature markers.
     fn comment(&mut self, c: &[u8]) {
-        if c.starts_with(b"LAYER_CHANGE") || (c.starts_with(b"LAYER:") && !c.starts_with(b"LAYER_COUNT")) {
+        let c = c.trim_ascii_start();
+        if is_layer_marker(c) {
             self.marker_seen = true;
             // Two markers with no move between them (a slicer writing both kinds) are one change.
             if self.emitted_since_layer {
                 self.layer += 1;
                 self.emitted_since_layer = false;
             }
-        } else if let Some(t) = c.strip_prefix(b"TYPE:") {
+        } else if let Some(t) = feature_marker(c) {
             self.feature = Arc::from(String::from_utf8_lossy(t).trim());
         }
     }
@@ -451,6 +455,26 @@ impl Interpreter {
     }
 }
 
+/// A comment (leading blanks removed) that starts a layer: `LAYER_CHANGE`
+/// (PrusaSlicer, SuperSlicer, OrcaSlicer), `LAYER:n` (Cura), `CHANGE_LAYER`
+/// (Bambu Studio) or `layer n, Z = z` (Simplify3D).
+fn is_layer_marker(c: &[u8]) -> bool {
+    if c.starts_with(b"LAYER_CHANGE") || c.starts_with(b"CHANGE_LAYER") || (c.starts_with(b"LAYER:") && !c.starts_with(b"LAYER_COUNT")) {
+        return true;
+    }
+    // Simplify3D: digits between `layer ` and `, Z = ` (not Bambu's `layer num/…`).
+    c.strip_prefix(b"layer ").is_some_and(|rest| {
+        let digits = rest.iter().take_while(|b| b.is_ascii_digit()).count();
+        digits > 0 && rest[digits..].starts_with(b", Z = ")
+    })
+}
+
+/// The feature name of a feature marker: `TYPE:x` (PrusaSlicer, SuperSlicer,
+/// OrcaSlicer, Cura, Slic3r), `FEATURE: x` (Bambu Studio), `feature x` (Simplify3D).
+fn feature_marker(c: &[u8]) -> Option<&[u8]> {
+    c.strip_prefix(b"TYPE:").or_else(|| c.strip_prefix(b"FEATURE:")).or_else(|| c.strip_prefix(b"feature "))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -486,6 +510,44 @@ mod tests {
         assert_eq!(m.iter().map(|m| m.accel_mm_s2).collect::<Vec<_>>(), vec![800.0, 3000.0, 1500.0, 500.0]);
         assert_eq!(&*m[0].feature, "External perimeter");
         assert_eq!(&*m[3].feature, "WALL-OUTER");
+    }
+
+    #[test]
+    fn reads_every_slicers_layer_and_feature_markers() {
+        // Small files in each slicer's own syntax (headers, config blocks, firmware
+        // commands such as Bambu's `M624 AQAAAAAAAAA=` and Klipper's
+        // `EXCLUDE_OBJECT_DEFINE … POLYGON=[[…]]`): three layers of a 20 mm square
+        // wall and two infill diagonals, 4 extruded wall moves per layer.
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/slicers");
+        for (file, outer, infill) in [
+            ("orcaslicer.gcode", "Outer wall", "Sparse infill"),
+            ("bambu-studio.gcode", "Outer wall", "Sparse infill"),
+            ("superslicer.gcode", "External perimeter", "Internal infill"),
+            ("cura.gcode", "WALL-OUTER", "FILL"),
+            ("simplify3d.gcode", "outer perimeter", "infill"),
+        ] {
+            let text = std::fs::read_to_string(dir.join(file)).expect("fixture");
+            let m = read(&text).unwrap_or_else(|e| panic!("{file}: {e}"));
+            let layers: std::collections::BTreeSet<u32> = m.iter().map(|m| m.layer).collect();
+            assert_eq!(layers.len(), 3, "{file}: layers {layers:?}");
+            for l in &layers {
+                let walls = m.iter().filter(|m| m.layer == *l && m.extruding && &*m.feature == outer).count();
+                assert_eq!(walls, 4, "{file}: layer {l}");
+                assert!(m.iter().any(|m| m.layer == *l && m.extruding && &*m.feature == infill), "{file}: layer {l}");
+            }
+        }
+        // A role no slicer above names is kept as written.
+        let m = read(&std::fs::read_to_string(dir.join("superslicer.gcode")).expect("fixture")).expect("reads");
+        assert_eq!(m.last().map(|m| &*m.feature), Some("Ironing (a role this reader has never seen)"));
+    }
+
+    #[test]
+    fn layer_markers_of_each_slicer_count_once_and_others_not_at_all() {
+        let text = "; CHANGE_LAYER\n;LAYER_CHANGE\nG1 X1 Y0 E1\n; layer 2, Z = 0.400\nG1 X2 E1\n; layer num/total_layer_count: 3/9\n; layer 3 from 9\nG1 X3 E1\n;LAYER:3\n; FEATURE: Inner wall\nG1 X4 E1\n; feature skirt\nG1 X5 E1\n";
+        let m = read(text).expect("reads");
+        assert_eq!(m.iter().map(|m| m.layer).collect::<Vec<_>>(), vec![0, 1, 1, 2, 2]);
+        assert_eq!(&*m[3].feature, "Inner wall");
+        assert_eq!(&*m[4].feature, "skirt");
     }
 
     #[test]
@@ -588,6 +650,18 @@ mod tests {
         let text = b"N1 G1 X1 Y1*34\r\nG1 X2 Y1 ; caf\xe9 \xb0\r\n";
         let m: Vec<Move> = moves(&text[..], "t").collect::<Result<_, _>>().expect("reads");
         assert_eq!(ends(&m), vec![(1.0, 1.0), (2.0, 1.0)]);
+    }
+
+    proptest! {
+        #[test]
+        fn no_comment_is_an_error_and_layers_never_go_back(comments in proptest::collection::vec("[ -~]{0,24}", 1..8)) {
+            // Any printable comment, marker-like or not, between moves: read without
+            // error, one move per line, layers non-decreasing.
+            let text: String = comments.iter().enumerate().map(|(k, c)| format!(";{c}\nG1 X{} Y{} E1\n", k + 1, k % 2)).collect();
+            let m = read(&text).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(m.len(), comments.len());
+            prop_assert!(m.windows(2).all(|w| w[0].layer <= w[1].layer));
+        }
     }
 
     proptest! {

@@ -19,7 +19,9 @@ pub fn fit_percent(y: &[f64], y_hat: &[f64]) -> f64 {
     crate::metrics::fit_percent(y, y_hat)
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// Median of `v` (sorted in place; the mean of the two middle values when
+/// even; NaN when empty).
+pub(crate) fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::features::heading_diff;
 use super::Junction;
+use crate::discrepancy::stats::median;
 use crate::ModelError;
 
 /// The prediction task.
@@ -172,36 +173,92 @@ impl LayerGrid {
     }
 }
 
-/// "The same place one layer down": the nearest junction `p` of the previous
-/// layer with a similar heading to junction `i`; predict what the path did `H`
-/// junctions on from `p`. Falls back to "no turn" without a match (or when
-/// `p + H` has not been read yet).
-pub fn previous_layer(j: &[Junction], task: &Task, settings: &PreviousLayer) -> Vec<Prediction> {
-    let mut out = Vec::with_capacity(task.count(j.len()));
+/// For every junction `i < count`, the nearest junction of the previous layer
+/// with a similar heading ([`PreviousLayer`]), from junctions `0..=i` only.
+pub fn previous_layer_matches(j: &[Junction], count: usize, settings: &PreviousLayer) -> Vec<Option<usize>> {
+    let mut out = Vec::with_capacity(count);
     let cell = settings.max_dist_mm.max(0.5);
     let mut prev = LayerGrid::new(cell);
     let mut cur = LayerGrid::new(cell);
     let mut cur_layer = j.first().map_or(0, |k| k.layer);
-    for i in 0..task.count(j.len()) {
+    for i in 0..count.min(j.len()) {
         if j[i].layer != cur_layer {
             prev = std::mem::replace(&mut cur, LayerGrid::new(cell));
             cur_layer = j[i].layer;
         }
         cur.insert(&j[i], i);
-        let hit = prev.nearest(j, j[i].x, j[i].y, j[i].heading_deg, settings).map(|p| p + task.horizon).filter(|&t| t <= i);
-        out.push(match hit {
-            Some(t) => Prediction { angle_deg: j[t].turn_deg, corner_prob: if corner_label(j, t, i, task) { 1.0 } else { 0.0 } },
-            None => Prediction { angle_deg: 0.0, corner_prob: 0.0 },
-        });
+        out.push(prev.nearest(j, j[i].x, j[i].y, j[i].heading_deg, settings));
     }
     out
+}
+
+/// What the path did `H` junctions on from each anchor's match (its turn and
+/// corner label over junctions read); "no turn" without a match or when `p + H`
+/// has not been read yet.
+fn read_on(j: &[Junction], task: &Task, matches: &[Option<usize>]) -> Vec<Prediction> {
+    (0..task.count(j.len()))
+        .map(|i| match matches[i].map(|p| p + task.horizon).filter(|&t| t <= i) {
+            Some(t) => Prediction { angle_deg: j[t].turn_deg, corner_prob: if corner_label(j, t, i, task) { 1.0 } else { 0.0 } },
+            None => Prediction { angle_deg: 0.0, corner_prob: 0.0 },
+        })
+        .collect()
+}
+
+/// "The same place one layer down": the nearest junction `p` of the previous
+/// layer with a similar heading to junction `i`; predict what the path did `H`
+/// junctions on from `p`. Falls back to "no turn" without a match (or when
+/// `p + H` has not been read yet).
+pub fn previous_layer(j: &[Junction], task: &Task, settings: &PreviousLayer) -> Vec<Prediction> {
+    read_on(j, task, &previous_layer_matches(j, task.count(j.len()), settings))
+}
+
+/// Match radii (mm) and heading tolerances (degrees) the previous-layer
+/// baseline is tuned over: radii from about a line width to well past the
+/// untuned 3 mm, tolerances from near-parallel to a right angle.
+pub const PREVIOUS_LAYER_RADII_MM: [f64; 6] = [0.5, 1.0, 2.0, 3.0, 4.0, 8.0];
+/// See [`PREVIOUS_LAYER_RADII_MM`].
+pub const PREVIOUS_LAYER_TOLERANCES_DEG: [f64; 4] = [10.0, 30.0, 60.0, 90.0];
+
+/// One grid point of the previous-layer tuning and its angle MAE on the
+/// training paths (mean over the tasks' horizons, every anchor weighted alike).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PreviousLayerTrial {
+    pub settings: PreviousLayer,
+    pub mae_deg: f64,
+}
+
+/// Tune the previous-layer baseline on training paths: every radius of
+/// [`PREVIOUS_LAYER_RADII_MM`] × tolerance of [`PREVIOUS_LAYER_TOLERANCES_DEG`],
+/// scored by angle MAE over every horizon of `tasks`; the lowest wins (the
+/// first in grid order among equals). Returns the winner and every trial.
+pub fn tune_previous_layer(paths: &[&[Junction]], tasks: &[Task]) -> (PreviousLayer, Vec<PreviousLayerTrial>) {
+    let grid: Vec<PreviousLayer> = PREVIOUS_LAYER_RADII_MM
+        .iter()
+        .flat_map(|&max_dist_mm| PREVIOUS_LAYER_TOLERANCES_DEG.iter().map(move |&heading_tol_deg| PreviousLayer { heading_tol_deg, max_dist_mm }))
+        .collect();
+    let trials: Vec<PreviousLayerTrial> = crate::parallel::par_map(&grid, |settings| {
+        let (mut err, mut n) = (0.0, 0usize);
+        for j in paths {
+            let matches = previous_layer_matches(j, j.len(), settings);
+            for task in tasks {
+                let truth = targets(j, task);
+                for (t, p) in truth.iter().zip(read_on(j, task, &matches)) {
+                    err += (p.angle_deg - t.0).abs();
+                    n += 1;
+                }
+            }
+        }
+        PreviousLayerTrial { settings: *settings, mae_deg: if n == 0 { f64::NAN } else { err / n as f64 } }
+    });
+    let best = trials.iter().filter(|t| t.mae_deg.is_finite()).min_by(|a, b| a.mae_deg.total_cmp(&b.mae_deg)).map_or(PreviousLayer::default(), |t| t.settings);
+    (best, trials)
 }
 
 /// Settings of the k-nearest-neighbours baseline.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct KnnParams {
-    /// Neighbours averaged.
+    /// Neighbours whose median turn (and corner share) is predicted.
     pub k: usize,
     /// Junctions of history in the features (their signed turns and the lengths of the moves after them).
     pub history: usize,
@@ -283,10 +340,8 @@ impl Knn {
                 Some(f) => {
                     let nn = self.tree.nearest(&f, self.params.k);
                     let n = nn.len().max(1) as f64;
-                    Prediction {
-                        angle_deg: nn.iter().map(|&r| self.angle[r]).sum::<f64>() / n,
-                        corner_prob: nn.iter().filter(|&&r| self.corner[r]).count() as f64 / n,
-                    }
+                    let mut angles: Vec<f64> = nn.iter().map(|&r| self.angle[r]).collect();
+                    Prediction { angle_deg: median(&mut angles), corner_prob: nn.iter().filter(|&&r| self.corner[r]).count() as f64 / n }
                 }
                 None => Prediction { angle_deg: 0.0, corner_prob: 0.0 },
             })
@@ -531,6 +586,14 @@ mod tests {
         assert!(pred[..80].iter().all(|p| p.angle_deg == 0.0));
         let s = score(&truth[80..end], &pred[80..end]);
         assert_eq!((s.angle_mae_deg, s.corner_f1, s.corner_auc), (0.0, Some(1.0), Some(1.0)));
+    }
+
+    #[test]
+    fn knn_predicts_the_median_turn() {
+        // Two straight neighbours and a reversal: the median is straight on (the
+        // mean, 60°, is off by 60° on two of three).
+        assert_eq!(median(&mut [0.0, 180.0, 0.0]), 0.0);
+        assert_eq!(median(&mut [10.0, 90.0, 30.0, 50.0]), 40.0);
     }
 
     #[test]

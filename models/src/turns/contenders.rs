@@ -2,14 +2,56 @@
 //! network's anchors, so the network and the baselines are scored by one
 //! function on the same rows.
 
-use super::baselines::{self, Knn, KnnParams, Prediction, PreviousLayer};
+use super::baselines::{self, Knn, KnnParams, Prediction, PreviousLayer, PreviousLayerTrial};
 use super::evaluate::MethodPredictions;
 use super::features::{Task, CORNER_DEG};
 use super::Junction;
 use crate::ModelError;
+use serde::{Deserialize, Serialize};
 
 /// Name of the one-layer-down baseline.
 pub const PREVIOUS_LAYER: &str = "previous-layer";
+/// Name of the k-nearest-neighbours baseline.
+pub const KNN: &str = "knn";
+/// Baselines that stay in the tables but not in a claim: one never turns, the
+/// other is what the firmware already does (a stop after its newest block).
+pub const TRIVIAL: [&str; 2] = ["no-turn", "planner"];
+
+/// A threshold of one method at one horizon (and planner buffer; 0 for the F1 threshold).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MethodThreshold {
+    pub method: String,
+    pub blocks: usize,
+    pub horizon: usize,
+    pub threshold: f64,
+}
+
+/// The baselines' settings, tuned as the network's are and stored with it:
+/// the previous-layer match on the training files, and every baseline's F1
+/// threshold and corner-call threshold per buffer on the tuning files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct BaselineTuning {
+    pub previous_layer: PreviousLayer,
+    /// Every grid point tried, with its training MAE.
+    pub previous_layer_trials: Vec<PreviousLayerTrial>,
+    pub f1_thresholds: Vec<MethodThreshold>,
+    pub call_thresholds: Vec<MethodThreshold>,
+}
+
+impl BaselineTuning {
+    /// `method`'s threshold at `blocks` (0: F1) and `horizon`, if tuned.
+    pub fn threshold(&self, method: &str, blocks: usize, horizon: usize) -> Option<f64> {
+        let list = if blocks == 0 { &self.f1_thresholds } else { &self.call_thresholds };
+        list.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon).map(|t| t.threshold)
+    }
+}
+
+/// Tune the previous-layer match on the training paths for every horizon of `task`.
+pub fn tune_previous_layer(train: &[Vec<Junction>], task: &Task) -> (PreviousLayer, Vec<PreviousLayerTrial>) {
+    let paths: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
+    let tasks: Vec<baselines::Task> = task.horizons.iter().map(|&h| baseline_task(task, h)).collect();
+    baselines::tune_previous_layer(&paths, &tasks)
+}
 
 /// The baselines' task at horizon `h` (same corner rule as the network's).
 pub fn baseline_task(task: &Task, h: usize) -> baselines::Task {
@@ -31,18 +73,26 @@ fn wrap(method: &str, p: Vec<Prediction>) -> MethodPredictions {
     }
 }
 
-/// Predictions of every baseline for anchors `0..n − H` (`knn`: the one fitted for `h`).
-pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<&Knn>) -> Vec<MethodPredictions> {
+/// Predictions of every baseline for anchors `0..n − H` (`knn`: the one fitted
+/// for `h`), with the tuned previous-layer match and F1 thresholds (untuned:
+/// the defaults, 0.5).
+pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<&Knn>, tuning: Option<&BaselineTuning>) -> Vec<MethodPredictions> {
     let t = baseline_task(task, h);
+    let prev = tuning.map_or(PreviousLayer::default(), |b| b.previous_layer);
     let mut out = vec![
-        wrap("no-turn", baselines::no_turn(j, &t)),
+        wrap(TRIVIAL[0], baselines::no_turn(j, &t)),
         wrap("last-turn", baselines::last_turn(j, &t)),
-        wrap(PREVIOUS_LAYER, baselines::previous_layer(j, &t, &PreviousLayer::default())),
+        wrap(PREVIOUS_LAYER, baselines::previous_layer(j, &t, &prev)),
     ];
     if let Some(k) = knn {
-        out.push(wrap("knn", k.predict(j, &t)));
+        out.push(wrap(KNN, k.predict(j, &t)));
     }
     // The firmware reads where its newest block is: nothing beyond junction i.
-    out.push(wrap("planner", baselines::planner(j, &t, 0)));
+    out.push(wrap(TRIVIAL[1], baselines::planner(j, &t, 0)));
+    for p in &mut out {
+        if let Some(th) = tuning.and_then(|b| b.threshold(&p.method, 0, h)) {
+            p.threshold = th;
+        }
+    }
     out
 }

@@ -222,9 +222,16 @@ struct Corner {
     /// When braking starts, and when the buffer alone learns of the corner, s.
     t_dec: f64,
     t_known: f64,
-    /// Defect known by the buffer alone, and known before any ramp.
+    /// Defect known by the buffer alone, and known before any ramp (simulated
+    /// when first needed: by a call, or when the buffer alone knows that early).
     defect_buffer: f64,
-    defect_early: f64,
+    defect_early: std::cell::OnceCell<f64>,
+}
+
+impl Corner {
+    fn defect_early(&self, a: f64, ex: &Extrusion) -> f64 {
+        *self.defect_early.get_or_init(|| corner_defect(self.v_n, self.v_c, a, f64::NEG_INFINITY, ex))
+    }
 }
 
 impl Firmware {
@@ -244,8 +251,11 @@ impl Firmware {
                     // Braking starts (full lookahead) this long before the junction's time.
                     let t_dec = t_junction - (v_n - v_c) / a;
                     let t_known = ideal.blocks[know[idx].known_from_move].t_start_s;
-                    let defect_buffer = corner_defect(v_n, v_c, a, t_known - t_dec, ex);
-                    Corner { v_n, v_c, t_dec, t_known, defect_buffer, defect_early: corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex) }
+                    let mut c = Corner { v_n, v_c, t_dec, t_known, defect_buffer: 0.0, defect_early: std::cell::OnceCell::new() };
+                    // Known before the window opens, the buffer alone is the early case: one simulation.
+                    c.defect_buffer =
+                        if t_known - t_dec <= window_start(a, ex) { c.defect_early(a, ex) } else { corner_defect(v_n, v_c, a, t_known - t_dec, ex) };
+                    c
                 });
                 Event { a, t_junction, corner }
             })
@@ -309,7 +319,7 @@ impl Firmware {
         let defect_predicted = if t_known_pred >= c.t_known {
             c.defect_buffer
         } else if t_known_pred - c.t_dec <= window_start(ev.a, ex) {
-            c.defect_early
+            c.defect_early(ev.a, ex)
         } else {
             corner_defect(c.v_n, c.v_c, ev.a, t_known_pred - c.t_dec, ex)
         };
@@ -340,69 +350,122 @@ fn calls(pred: &HorizonPrediction, n: usize) -> Vec<bool> {
     called
 }
 
+/// Every callable junction's outcome at one horizon, without a call and (as
+/// first asked for) with one: what a call on a junction does depends on the
+/// junction, the buffer and H only, so the network and every baseline scored
+/// or tuned on a file share one simulation per junction.
+pub struct Outcomes<'a> {
+    fw: &'a Firmware,
+    j: &'a [Junction],
+    h: usize,
+    window_mm: f64,
+    ex: Extrusion,
+    without: Vec<Outcome>,
+    with: Vec<std::cell::OnceCell<Outcome>>,
+}
+
+impl<'a> Outcomes<'a> {
+    /// Outcomes of the junctions of `j` that a horizon-`h` prediction can call.
+    pub fn new(j: &'a [Junction], fw: &'a Firmware, h: usize, window_mm: f64, ex: &Extrusion) -> Self {
+        let range = fw.callable(h);
+        let without = range.clone().map(|idx| fw.outcome(j, idx, h, false, window_mm, ex)).collect();
+        Outcomes { fw, j, h, window_mm, ex: *ex, without, with: range.map(|_| std::cell::OnceCell::new()).collect() }
+    }
+
+    fn get(&self, idx: usize, called: bool) -> &Outcome {
+        let k = idx - self.h;
+        if called {
+            self.with[k].get_or_init(|| self.fw.outcome(self.j, idx, self.h, true, self.window_mm, &self.ex))
+        } else {
+            &self.without[k]
+        }
+    }
+
+    /// Late corners and width error with `pred`'s calls (anchor `i` calls a
+    /// corner within the window from junction `i + H` when its probability
+    /// reaches `pred.threshold`). The width error with prediction is the total
+    /// defect per sharp corner: the sharp corners' own plus what the false calls spoil.
+    pub fn downstream(&self, method: &str, pred: &HorizonPrediction) -> Downstream {
+        let called = calls(pred, self.j.len());
+        let mut d = Downstream { method: method.to_string(), horizon: self.h, blocks: self.fw.blocks, ..Default::default() };
+        let (mut sum_p, mut sum_n) = (0.0, 0.0);
+        for idx in self.fw.callable(self.h) {
+            let (base, o) = (self.get(idx, false), self.get(idx, called[idx]));
+            d.sharp += usize::from(base.sharp);
+            d.late_planner += usize::from(base.late_planner);
+            d.late_predicted += usize::from(o.late_predicted);
+            d.false_calls += usize::from(o.false_call);
+            sum_n += base.defect_planner;
+            sum_p += o.defect_predicted;
+        }
+        if d.sharp > 0 {
+            d.width_error_planner = sum_n / d.sharp as f64;
+            d.width_error_predicted = sum_p / d.sharp as f64;
+        }
+        d
+    }
+
+    /// What calling each anchor of `pred` would change: `(probability, Δ total
+    /// defect)`, Δ < 0 where the call rescues a corner, > 0 where it is false and
+    /// costs width, 0 where it changes nothing. Calls act independently (each
+    /// junction is called by one anchor), so a threshold's total is the sum of the
+    /// Δ of the anchors it calls.
+    pub fn call_gains(&self, pred: &HorizonPrediction) -> Vec<(f64, f64)> {
+        let range = self.fw.callable(self.h);
+        pred.anchors
+            .iter()
+            .zip(&pred.corner_probability)
+            .filter(|(&i, _)| range.contains(&(i + self.h)))
+            .map(|(&i, &p)| (p, self.get(i + self.h, true).defect_predicted - self.get(i + self.h, false).defect_predicted))
+            .collect()
+    }
+}
+
 /// Late corners and width error of one file at one horizon, given a method's
-/// predictions at that horizon (anchor `i` calls a corner within `window_mm`
-/// of path from junction `i + H` when its probability reaches `pred.threshold`).
-/// The width error with prediction is the total defect per sharp corner: the
-/// sharp corners' own plus what the false calls spoil.
+/// predictions at that horizon ([`Outcomes::downstream`] for a single method).
 pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
-    let h = pred.horizon;
-    let called = calls(pred, j.len());
-    let mut d = Downstream { method: method.to_string(), horizon: h, blocks: firmware.blocks, ..Default::default() };
-    let (mut sum_p, mut sum_n) = (0.0, 0.0);
-    for idx in firmware.callable(h) {
-        let o = firmware.outcome(j, idx, h, called[idx], window_mm, ex);
-        d.sharp += usize::from(o.sharp);
-        d.late_planner += usize::from(o.late_planner);
-        d.late_predicted += usize::from(o.late_predicted);
-        d.false_calls += usize::from(o.false_call);
-        sum_n += o.defect_planner;
-        sum_p += o.defect_predicted;
-    }
-    if d.sharp > 0 {
-        d.width_error_planner = sum_n / d.sharp as f64;
-        d.width_error_predicted = sum_p / d.sharp as f64;
-    }
-    d
+    Outcomes::new(j, firmware, pred.horizon, window_mm, ex).downstream(method, pred)
 }
 
-/// What calling each anchor of `pred` would change: `(probability, Δ total
-/// defect)`, Δ < 0 where the call rescues a corner, > 0 where it is false and
-/// costs width, 0 where it changes nothing. Calls act independently (each
-/// junction is called by one anchor), so a threshold's total is the sum of the
-/// Δ of the anchors it calls.
-pub fn call_gains(j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Vec<(f64, f64)> {
-    let h = pred.horizon;
-    pred.anchors
-        .iter()
-        .zip(&pred.corner_probability)
-        .filter(|(&i, _)| firmware.callable(h).contains(&(i + h)))
-        .map(|(&i, &p)| {
-            let (with, without) = (firmware.outcome(j, i + h, h, true, window_mm, ex), firmware.outcome(j, i + h, h, false, window_mm, ex));
-            (p, with.defect_predicted - without.defect_predicted)
-        })
-        .collect()
+/// One anchor's call on a tuning file: its probability, what it changes
+/// ([`Outcomes::call_gains`]) and the file it is on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CallGain {
+    pub probability: f64,
+    pub delta: f64,
+    pub file: usize,
 }
 
-/// The probability threshold minimising the total defect over `gains` (of
-/// [`call_gains`], pooled over files): calls are taken in order of falling
-/// probability and the cut is placed where the running sum is lowest (the
-/// fewest calls among equals), midway between the last probability called
-/// and the next. Above every probability (nothing called) when no call pays.
-pub fn best_call_threshold(gains: &mut [(f64, f64)]) -> f64 {
-    gains.sort_by(|a, b| b.0.total_cmp(&a.0));
+/// The probability threshold minimising the total defect over `gains` (pooled
+/// over the tuning files) while doing no harm: calls are taken in order of
+/// falling probability, and a cut is admissible only if no tuning file's sum
+/// of Δ is above zero there (no file's line-width error rises above the buffer
+/// alone). Among admissible cuts the lowest total wins (the fewest calls among
+/// equals); the threshold lies midway between the last probability called and
+/// the next. Above every probability (nothing called) when no cut pays, so a
+/// 0/1 method either calls at 1 or never.
+pub fn best_call_threshold(gains: &mut [CallGain]) -> f64 {
+    gains.sort_by(|a, b| b.probability.total_cmp(&a.probability));
+    let files = gains.iter().map(|g| g.file + 1).max().unwrap_or(0);
+    let mut per_file = vec![0.0f64; files];
+    // Files whose running sum is above zero (harmed at the present cut).
+    let mut harmed = 0usize;
     let (mut sum, mut best, mut cut) = (0.0, 0.0, 0);
-    for (k, &(_, d)) in gains.iter().enumerate() {
-        sum += d;
+    for (k, g) in gains.iter().enumerate() {
+        sum += g.delta;
+        let before = per_file[g.file] > 1e-12;
+        per_file[g.file] += g.delta;
+        let after = per_file[g.file] > 1e-12;
+        harmed = harmed + usize::from(after) - usize::from(before);
         // Probabilities tied with the next one cannot be split by a threshold.
-        if sum < best && gains.get(k + 1).is_none_or(|n| n.0 < gains[k].0) {
+        if harmed == 0 && sum < best && gains.get(k + 1).is_none_or(|n| n.probability < g.probability) {
             (best, cut) = (sum, k + 1);
         }
     }
     match cut {
-        0 => gains.first().map_or(1.0, |g| g.0.max(1.0)) + 1e-6,
-        c if c == gains.len() => gains[c - 1].0,
-        c => 0.5 * (gains[c - 1].0 + gains[c].0),
+        0 => gains.first().map_or(1.0, |g| g.probability.max(1.0)) + 1e-6,
+        c if c == gains.len() => gains[c - 1].probability,
+        c => 0.5 * (gains[c - 1].probability + gains[c].probability),
     }
 }
 
@@ -474,16 +537,26 @@ mod tests {
         // Calls by falling probability: Δ −2, +1, −0.5, +3, −0.1 → running sums −2,
         // −1, −1.5, 1.5, 1.4: the lowest is after the first call, so the cut lies
         // between 0.9 and 0.8.
-        let mut g = vec![(0.5, -0.1), (0.8, 1.0), (0.9, -2.0), (0.6, 3.0), (0.7, -0.5)];
+        let one = |v: &[(f64, f64)]| v.iter().map(|&(probability, delta)| CallGain { probability, delta, file: 0 }).collect::<Vec<_>>();
+        let mut g = one(&[(0.5, -0.1), (0.8, 1.0), (0.9, -2.0), (0.6, 3.0), (0.7, -0.5)]);
         assert!((best_call_threshold(&mut g) - 0.85).abs() < 1e-12);
         // Tied probabilities are one decision: 0.9 with −2 and +2.5 together cost 0.5.
-        let mut g = vec![(0.9, -2.0), (0.9, 2.5), (0.4, -1.0)];
+        let mut g = one(&[(0.9, -2.0), (0.9, 2.5), (0.4, -1.0)]);
         assert!((best_call_threshold(&mut g) - 0.4).abs() < 1e-12);
         // When no call pays, nothing is called; when every call pays, all are.
-        let mut g = vec![(1.0, 0.0), (0.6, 0.5)];
+        let mut g = one(&[(1.0, 0.0), (0.6, 0.5)]);
         assert!(best_call_threshold(&mut g) > 1.0);
-        let mut g = vec![(0.3, -1.0), (0.2, -0.5)];
+        let mut g = one(&[(0.3, -1.0), (0.2, -0.5)]);
         assert!((best_call_threshold(&mut g) - 0.2).abs() < 1e-12);
+        // Do no harm: calling down to 0.6 totals −2.5, the lowest, but leaves file 1
+        // at +0.5 (above its buffer alone), so the cut stays after 0.8 (total −2).
+        let mut g = vec![
+            CallGain { probability: 0.9, delta: -1.0, file: 0 },
+            CallGain { probability: 0.8, delta: -1.0, file: 1 },
+            CallGain { probability: 0.7, delta: 1.5, file: 1 },
+            CallGain { probability: 0.6, delta: -2.0, file: 0 },
+        ];
+        assert!((best_call_threshold(&mut g) - 0.75).abs() < 1e-12);
     }
 
     #[test]

@@ -2,7 +2,8 @@
 //! corner ROC AUC, for the network and every baseline on the same anchors.
 
 use super::baselines::Knn;
-use super::downstream::{best_call_threshold, call_gains, downstream, Downstream, Extrusion, Firmware};
+use super::contenders::{BaselineTuning, MethodThreshold};
+use super::downstream::{best_call_threshold, CallGain, Downstream, Extrusion, Firmware, Outcomes};
 use super::features::{corner_target, Task};
 use super::net::{CallThreshold, HorizonPrediction, TurnModel};
 use super::planner::{Lookahead, Planner, PlannerParams};
@@ -69,7 +70,7 @@ pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Optio
     let p = model.predict(j, horizon)?;
     let mut out =
         vec![MethodPredictions { method: NETWORK.into(), angle_deg: p.angle_deg.clone(), corner_score: p.corner_probability.clone(), threshold: p.threshold }];
-    out.extend(super::contenders::baselines_for(j, &model.task, horizon, knn));
+    out.extend(super::contenders::baselines_for(j, &model.task, horizon, knn, model.baselines.as_ref()));
     Ok((out, p))
 }
 
@@ -119,6 +120,9 @@ pub struct Summary {
     pub junctions: usize,
     pub horizons: Vec<HorizonScores>,
     pub downstream: Vec<Downstream>,
+    /// Per (buffer, horizon, method), as `downstream`: the gain over the buffer alone across files.
+    #[serde(default)]
+    pub gains: Vec<Gain>,
 }
 
 /// The firmware of the downstream comparison: Marlin's planner (junction
@@ -130,7 +134,9 @@ pub fn reference_planner(blocks: usize) -> Result<Planner, ModelError> {
 
 /// Every method's corner calls (`preds`, on the network's anchors `raw`) driving
 /// the advance with each planner of `firmware`: `(buffer index, method index,
-/// result)`. The network acts at the call threshold tuned for each buffer.
+/// result)`. Each method acts at its call threshold tuned for the buffer
+/// ([`TurnModel::method_call_threshold`]); the junctions' outcomes are
+/// simulated once per buffer and shared by every method.
 pub fn downstream_of_methods(
     j: &[Junction],
     firmware: &[Firmware],
@@ -141,13 +147,18 @@ pub fn downstream_of_methods(
     let ex = Extrusion::default();
     let mut out = vec![];
     for (b, fw) in firmware.iter().enumerate() {
+        let outcomes = Outcomes::new(j, fw, raw.horizon, model.task.corner_window_mm, &ex);
         for (mi, p) in preds.iter().enumerate().filter(|(_, p)| p.corner_score.len() == raw.anchors.len()) {
-            let threshold = if p.method == NETWORK { model.call_threshold(fw.blocks, raw.horizon)? } else { p.threshold };
-            let call = HorizonPrediction { corner_probability: p.corner_score.clone(), threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() };
-            out.push((b, mi, downstream(&p.method, j, fw, &call, model.task.corner_window_mm, &ex)));
+            let threshold = model.method_call_threshold(&p.method, fw.blocks, raw.horizon, p.threshold)?;
+            out.push((b, mi, outcomes.downstream(&p.method, &as_calls(p, raw, threshold))));
         }
     }
     Ok(out)
+}
+
+/// A method's predictions as calls on the network's anchors at `threshold`.
+fn as_calls(p: &MethodPredictions, raw: &HorizonPrediction, threshold: f64) -> HorizonPrediction {
+    HorizonPrediction { corner_probability: p.corner_score.clone(), threshold, angle_deg: p.angle_deg.clone(), ..raw.clone() }
 }
 
 /// Marlin's default planner buffer, blocks.
@@ -158,43 +169,131 @@ pub const MARLIN_BLOCKS: usize = 16;
 /// late on slicer output.
 pub const DEFAULT_BLOCKS: [usize; 3] = [MARLIN_BLOCKS, 4, 2];
 
-/// Score every file (its moves) at every horizon of the model, the downstream
-/// comparison at every buffer size of `blocks`; returns the pooled summary and
-/// per-file results.
-pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<Junction>], blocks: &[usize]) -> Result<(Summary, Vec<FileEval>), ModelError> {
+/// One method's line-width gain over the buffer alone at one buffer and
+/// horizon across held-out files: pooled `width − width of the buffer alone`
+/// in percentage points (negative: the calls help), with a percentile
+/// bootstrap interval over files, and the files it makes worse.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Gain {
+    pub method: String,
+    pub blocks: usize,
+    pub horizon: usize,
+    pub files: usize,
+    pub gain_pp: f64,
+    /// 95 % percentile bootstrap interval over files ([`BOOTSTRAP`] resamples).
+    pub lo_pp: f64,
+    pub hi_pp: f64,
+    /// Files whose width error the calls raise above the buffer alone.
+    pub files_worse: usize,
+    /// Largest rise on one file, percentage points (≤ 0 when none is worse).
+    pub worst_file_pp: f64,
+    /// Per file, in file order: its gain, percentage points.
+    pub per_file_pp: Vec<f64>,
+}
+
+/// Bootstrap resamples of [`file_gain`].
+pub const BOOTSTRAP: usize = 2000;
+
+/// Random stream of the bootstrap over files.
+const BOOTSTRAP_STREAM: u64 = 0x6761_696e;
+
+/// Pooled gain of one method over files (`parts`, one per file), with a seeded
+/// percentile bootstrap over files: each resample draws as many files with
+/// replacement and pools their corners (Efron and Tibshirani 1993, §13.3).
+pub fn file_gain(parts: &[Downstream], seed: u64) -> Gain {
+    use rand::Rng as _;
+    let pooled = |idx: &mut dyn Iterator<Item = usize>| {
+        let (mut sharp, mut diff) = (0.0, 0.0);
+        for i in idx {
+            let d = &parts[i];
+            sharp += d.sharp as f64;
+            diff += (d.width_error_predicted - d.width_error_planner) * d.sharp as f64;
+        }
+        if sharp > 0.0 {
+            100.0 * diff / sharp
+        } else {
+            0.0
+        }
+    };
+    let n = parts.len();
+    let gain_pp = pooled(&mut (0..n));
+    let mut rng = crate::rng::seeded(seed, BOOTSTRAP_STREAM);
+    let mut draws: Vec<f64> = (0..if n > 1 { BOOTSTRAP } else { 0 }).map(|_| pooled(&mut (0..n).map(|_| rng.random_range(0..n)))).collect();
+    draws.sort_by(f64::total_cmp);
+    let q = |f: f64| if draws.is_empty() { gain_pp } else { draws[((f * draws.len() as f64) as usize).min(draws.len() - 1)] };
+    let per_file_pp: Vec<f64> = parts.iter().map(|d| 100.0 * (d.width_error_predicted - d.width_error_planner)).collect();
+    Gain {
+        method: parts.first().map_or(String::new(), |d| d.method.clone()),
+        blocks: parts.first().map_or(0, |d| d.blocks),
+        horizon: parts.first().map_or(0, |d| d.horizon),
+        files: n,
+        gain_pp,
+        lo_pp: q(0.025),
+        hi_pp: q(0.975),
+        files_worse: per_file_pp.iter().filter(|&&g| g > 1e-9).count(),
+        worst_file_pp: per_file_pp.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        per_file_pp,
+    }
+}
+
+/// Score every file (its moves) at each of `horizons` (the model's), the
+/// downstream comparison at every buffer size of `blocks`; returns the pooled
+/// summary (with each method's gain over files, bootstrap seeded by `seed`)
+/// and per-file results.
+pub fn evaluate(
+    files: &[(String, Vec<Move>)],
+    model: &TurnModel,
+    train: &[Vec<Junction>],
+    blocks: &[usize],
+    horizons: &[usize],
+    seed: u64,
+) -> Result<(Summary, Vec<FileEval>), ModelError> {
     let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
     let knn = super::contenders::fit_knn(train, &model.task)?;
+    let slots: Vec<usize> = horizons.iter().map(|&h| model.slot(h)).collect::<Result<_, _>>()?;
     let ex = Extrusion::default();
-    let mut per_file = vec![];
+    // Files on every core; each file's horizons and buffers in order.
+    let per_file = crate::parallel::par_map(
+        files,
+        |(name, moves)| -> Result<(FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>), ModelError> {
+            let j = &super::junctions(moves);
+            let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
+            let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
+            let (mut tp, mut downs) = (vec![], vec![]);
+            for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
+                let t = truth(j, &model.task, h);
+                let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
+                for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
+                    downs.push(((b, k, mi), d.clone()));
+                    fe.downstream.push(d);
+                }
+                fe.horizons.push(HorizonScores {
+                    horizon: h,
+                    rows: t.angle_deg.len(),
+                    methods: preds.iter().map(|p| score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect(),
+                });
+                fe.traces.push(trace(j, h, &t, &preds));
+                tp.push((t, preds));
+            }
+            Ok((fe, tp, downs))
+        },
+    );
+    let mut out = vec![];
     let mut pooled: Vec<(Truth, Vec<MethodPredictions>)> = vec![];
     // By (buffer, horizon, method), in that order.
     let mut pooled_down: std::collections::BTreeMap<(usize, usize, usize), Vec<Downstream>> = Default::default();
     let mut total = 0;
-    for (name, moves) in files {
-        let j = &super::junctions(moves);
-        total += j.len();
-        let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
-        let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
-        for (slot, &h) in model.task.horizons.iter().enumerate() {
-            let t = truth(j, &model.task, h);
-            let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
-            for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
-                pooled_down.entry((b, slot, mi)).or_default().push(d.clone());
-                fe.downstream.push(d);
-            }
-            fe.horizons.push(HorizonScores {
-                horizon: h,
-                rows: t.angle_deg.len(),
-                methods: preds.iter().map(|p| score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect(),
-            });
-            fe.traces.push(trace(j, h, &t, &preds));
-            if pooled.len() <= slot {
+    for r in per_file {
+        let (fe, tp, downs) = r?;
+        total += fe.junctions;
+        for (k, (t, preds)) in tp.into_iter().enumerate() {
+            if pooled.len() <= k {
                 pooled.push((
-                    Truth { horizon: h, ..Truth::default() },
+                    Truth { horizon: t.horizon, ..Truth::default() },
                     preds.iter().map(|p| MethodPredictions { angle_deg: vec![], corner_score: vec![], ..p.clone() }).collect(),
                 ));
             }
-            let (pt, pp) = &mut pooled[slot];
+            let (pt, pp) = &mut pooled[k];
             pt.angle_deg.extend(&t.angle_deg);
             pt.corner.extend(&t.corner);
             for (dst, src) in pp.iter_mut().zip(&preds) {
@@ -202,7 +301,10 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
                 dst.corner_score.extend(&src.corner_score);
             }
         }
-        per_file.push(fe);
+        for (key, d) in downs {
+            pooled_down.entry(key).or_default().push(d);
+        }
+        out.push(fe);
     }
     let horizons = pooled
         .iter()
@@ -213,13 +315,17 @@ pub fn evaluate(files: &[(String, Vec<Move>)], model: &TurnModel, train: &[Vec<J
         })
         .collect();
     let downstream = pooled_down.values().map(|d| Downstream::pool(d)).collect();
-    Ok((Summary { files: files.len(), junctions: total, horizons, downstream }, per_file))
+    let gains = pooled_down.values().map(|d| file_gain(d, seed)).collect();
+    Ok((Summary { files: files.len(), junctions: total, horizons, downstream, gains }, out))
 }
 
-/// Train on the files' junctions, then tune the corner calls for each buffer
-/// of `blocks` on the same files ([`tune_calls`]).
+/// Train on the `train` files' junctions, tune the baselines' previous-layer
+/// match on them, then tune every method's thresholds for each buffer of
+/// `blocks` on the `tune` files ([`tune_calls`]; the training files when none
+/// are given).
 pub fn train_and_tune(
     files: &[Vec<Move>],
+    tune: &[Vec<Move>],
     task: &super::features::Task,
     params: &crate::nets::params::ValidTrainParams,
     blocks: &[usize],
@@ -227,44 +333,113 @@ pub fn train_and_tune(
 ) -> Result<TurnModel, ModelError> {
     let junctions: Vec<Vec<Junction>> = files.iter().map(|m| super::junctions(m)).collect();
     let mut model = TurnModel::train(&junctions, task, params, on_epoch)?;
-    tune_calls(&mut model, files, blocks)?;
+    tune_calls(&mut model, &junctions, if tune.is_empty() { files } else { tune }, blocks)?;
     Ok(model)
 }
 
-/// Choose the network's corner-call threshold for each planner buffer of
-/// `blocks` and each horizon on the training files' moves: the one minimising
-/// the downstream width error there ([`best_call_threshold`]). A call is worth
-/// its false alarms only where the buffer would learn of corners late, so the
+/// Tune every method alike on the `tune` files' moves (the network's and each
+/// baseline's, kNN fitted on the `train` junctions): the F1 threshold of each
+/// probability at each horizon ([`super::net::best_threshold`]), and the corner-call
+/// threshold for each planner buffer of `blocks` and horizon, the one
+/// minimising the downstream width error without raising any tuning file's
+/// above the buffer alone ([`best_call_threshold`]); a 0/1 method either calls
+/// or never does. The previous-layer match is tuned first, on the `train`
+/// junctions ([`super::contenders::tune_previous_layer`]). A call is worth its
+/// false alarms only where the buffer would learn of corners late, so the call
 /// threshold depends on the buffer, not on F1.
-pub fn tune_calls(model: &mut TurnModel, files: &[Vec<Move>], blocks: &[usize]) -> Result<(), ModelError> {
+pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Move>], blocks: &[usize]) -> Result<(), ModelError> {
+    let (previous_layer, previous_layer_trials) = super::contenders::tune_previous_layer(train, &model.task);
+    model.baselines = Some(BaselineTuning { previous_layer, previous_layer_trials, ..BaselineTuning::default() });
+    let knn = super::contenders::fit_knn(train, &model.task)?;
     let ex = Extrusion::default();
     let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
-    let cells = blocks.len() * model.task.horizons.len();
-    // Per file (on every core), per (buffer, horizon) cell: the gains of its calls.
-    let per_file = crate::parallel::par_map(files, |moves| -> Result<Vec<Vec<(f64, f64)>>, ModelError> {
+    let horizons = model.task.horizons.clone();
+    let indexed: Vec<(usize, &Vec<Move>)> = tune.iter().enumerate().collect();
+    let m = &*model;
+    // Per file (on every core): per horizon, the methods' names, truth and
+    // corner scores; per (buffer, horizon, method), its calls' gains.
+    type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<CallGain>>>);
+    let per_file = crate::parallel::par_map(&indexed, |&(file, moves)| -> Result<FileTuning, ModelError> {
         let j = &super::junctions(moves);
-        let preds: Vec<HorizonPrediction> = model.task.horizons.iter().map(|&h| model.predict(j, h)).collect::<Result<_, _>>()?;
-        let mut out = Vec::with_capacity(cells);
+        let preds: Vec<(Vec<MethodPredictions>, HorizonPrediction)> =
+            horizons.iter().enumerate().map(|(slot, &h)| predictions(j, m, h, knn.get(slot))).collect::<Result<_, _>>()?;
+        let f1 = preds
+            .iter()
+            .zip(&horizons)
+            .map(|((ps, _), &h)| {
+                (ps.iter().map(|p| p.method.clone()).collect(), truth(j, &m.task, h).corner, ps.iter().map(|p| p.corner_score.clone()).collect())
+            })
+            .collect();
+        let mut gains = vec![];
         for planner in &planners {
             let fw = Firmware::new(planner, moves, j, &ex);
-            out.extend(preds.iter().map(|p| call_gains(j, &fw, p, model.task.corner_window_mm, &ex)));
+            for (ps, raw) in &preds {
+                let outcomes = Outcomes::new(j, &fw, raw.horizon, m.task.corner_window_mm, &ex);
+                gains.push(ps.iter().map(|p| merge_ties(outcomes.call_gains(&as_calls(p, raw, 0.0)), file)).collect());
+            }
         }
-        Ok(out)
+        Ok((f1, gains))
     });
-    let mut gains: Vec<Vec<(f64, f64)>> = vec![vec![]; cells];
-    for file in per_file {
-        for (all, part) in gains.iter_mut().zip(file?) {
-            all.extend(part);
+    let (mut f1_data, mut gains): (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<CallGain>>>) = (vec![], vec![]);
+    for r in per_file {
+        let (f1, g) = r?;
+        for (k, (names, labels, scores)) in f1.into_iter().enumerate() {
+            if f1_data.len() <= k {
+                f1_data.push((names, vec![], vec![vec![]; scores.len()]));
+            }
+            f1_data[k].1.extend(labels);
+            for (dst, src) in f1_data[k].2.iter_mut().zip(scores) {
+                dst.extend(src);
+            }
+        }
+        for (k, cell) in g.into_iter().enumerate() {
+            if gains.len() <= k {
+                gains.push(vec![vec![]; cell.len()]);
+            }
+            for (dst, src) in gains[k].iter_mut().zip(cell) {
+                dst.extend(src);
+            }
         }
     }
-    let horizons = model.task.horizons.clone();
-    model.call_thresholds = blocks
-        .iter()
-        .flat_map(|&n| horizons.iter().map(move |&h| (n, h)))
-        .zip(gains.iter_mut())
-        .map(|((blocks, horizon), g)| CallThreshold { blocks, horizon, threshold: best_call_threshold(g) })
-        .collect();
+    let mut tuning = model.baselines.take().unwrap_or_default();
+    for (slot, (names, labels, scores)) in f1_data.iter().enumerate() {
+        for (name, sc) in names.iter().zip(scores) {
+            let threshold = super::net::best_threshold(sc, labels);
+            if name == NETWORK {
+                model.thresholds[slot] = threshold as f32;
+            } else {
+                tuning.f1_thresholds.push(MethodThreshold { method: name.clone(), blocks: 0, horizon: horizons[slot], threshold });
+            }
+        }
+    }
+    model.call_thresholds.clear();
+    let cells = blocks.iter().flat_map(|&n| horizons.iter().enumerate().map(move |(slot, &h)| (n, slot, h)));
+    for ((blocks, slot, horizon), methods) in cells.zip(gains.iter_mut()) {
+        for (name, g) in f1_data[slot].0.iter().zip(methods.iter_mut()) {
+            let threshold = best_call_threshold(g);
+            if name == NETWORK {
+                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold });
+            } else {
+                tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold });
+            }
+        }
+    }
+    model.baselines = Some(tuning);
     Ok(())
+}
+
+/// One file's call gains with equal probabilities merged (one decision for a
+/// threshold), so 0/1 and vote-share methods keep a few entries per file.
+fn merge_ties(mut g: Vec<(f64, f64)>, file: usize) -> Vec<CallGain> {
+    g.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut out: Vec<CallGain> = Vec::with_capacity(g.len());
+    for (probability, delta) in g {
+        match out.last_mut() {
+            Some(last) if last.probability == probability => last.delta += delta,
+            _ => out.push(CallGain { probability, delta, file }),
+        }
+    }
+    out
 }
 
 fn trace(j: &[Junction], h: usize, t: &Truth, preds: &[MethodPredictions]) -> Trace {

@@ -43,6 +43,10 @@ pub struct TurnModel {
     /// downstream width error (`evaluate::tune_calls`); `thresholds` where absent.
     #[serde(default)]
     pub call_thresholds: Vec<CallThreshold>,
+    /// The baselines' settings tuned as the network's thresholds are (none in
+    /// models from before the baselines were tuned: their defaults).
+    #[serde(default)]
+    pub baselines: Option<super::contenders::BaselineTuning>,
     pub params: ValidTrainParams,
     /// Training rows (anchors) and junctions read.
     pub rows: usize,
@@ -114,7 +118,7 @@ fn sigmoid(z: f32) -> f64 {
 }
 
 /// Threshold maximising F1 of `p` against `truth` (0.5 when no positives).
-fn best_threshold(p: &[f64], truth: &[bool]) -> f64 {
+pub(crate) fn best_threshold(p: &[f64], truth: &[bool]) -> f64 {
     let mut best = (0.0, 0.5);
     for k in 1..20 {
         let t = k as f64 / 20.0;
@@ -153,6 +157,7 @@ impl TurnModel {
             weights,
             thresholds: vec![0.5; task.horizons.len()],
             call_thresholds: vec![],
+            baselines: None,
             params: params.clone(),
             rows,
             junctions: files.iter().map(Vec::len).sum(),
@@ -242,6 +247,16 @@ impl TurnModel {
     pub fn call_threshold(&self, blocks: usize, horizon: usize) -> Result<f64, ModelError> {
         let tuned = self.call_thresholds.iter().find(|c| c.blocks == blocks && c.horizon == horizon);
         Ok(tuned.map_or(self.thresholds[self.slot(horizon)?] as f64, |c| c.threshold))
+    }
+
+    /// The threshold at which `method`'s corner calls drive the advance with a
+    /// buffer of `blocks` at `horizon`: the network's [`Self::call_threshold`], a
+    /// baseline's tuned one, else `fallback` (its F1 threshold).
+    pub fn method_call_threshold(&self, method: &str, blocks: usize, horizon: usize, fallback: f64) -> Result<f64, ModelError> {
+        if method == super::evaluate::NETWORK {
+            return self.call_threshold(blocks, horizon);
+        }
+        Ok(self.baselines.as_ref().and_then(|b| b.threshold(method, blocks, horizon)).unwrap_or(fallback))
     }
 
     /// Weight size in bytes as float32 (weights, biases, standardisation).

@@ -50,11 +50,15 @@ impl Default for DownstreamSection {
 #[serde(deny_unknown_fields)]
 pub struct DataSection {
     pub train: Vec<String>,
-    /// Held-out G-code (other slicers and printers) the report scores on.
+    /// G-code every method's thresholds are tuned on (other model families than
+    /// train and test); empty: the training files.
+    #[serde(default)]
+    pub tune: Vec<String>,
+    /// Held-out G-code (other model families) the report scores on.
     pub test: Vec<String>,
 }
 
-/// `[task]`; defaults: H = 16, 32, 64 and a 2 mm corner window.
+/// `[task]`; defaults ([`Task::default`]): H = 16, 32, 64 and a 10 mm corner window.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TaskSection {
@@ -182,6 +186,8 @@ struct TrainStage {
     task: Task,
     settings: ValidTrainParams,
     files: Vec<String>,
+    /// Files the thresholds are tuned on (none: the training files).
+    tune: Vec<String>,
     /// Planner buffers the corner calls are tuned for.
     blocks: Vec<usize>,
 }
@@ -194,6 +200,8 @@ struct EvalStage {
     files: Vec<String>,
     /// Planner buffers of the downstream comparison.
     blocks: Vec<usize>,
+    /// Seed of the bootstrap over files.
+    seed: u64,
 }
 
 /// Parameters of the `export` stage.
@@ -239,23 +247,32 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let formats = formats.map_err(|e| spec.bad_value("export.formats", e.to_string()))?;
     let train_files = resolve(spec, "data.train", &s.data.train)?;
     let test_files = resolve(spec, "data.test", &s.data.test)?;
+    let tune_files = if s.data.tune.is_empty() { vec![] } else { resolve(spec, "data.tune", &s.data.tune)? };
     let train_labels: Vec<String> = train_files.iter().map(|p| label(spec, p)).collect();
+    let tune_labels: Vec<String> = tune_files.iter().map(|p| label(spec, p)).collect();
     let test_labels: Vec<String> = test_files.iter().map(|p| label(spec, p)).collect();
 
     let mut stages = vec![];
     let tf = train_files.clone();
+    let tuf = tune_files.clone();
+    let mut read_for_training = train_files.clone();
+    read_for_training.extend(tune_files.iter().cloned());
     stages.push(
         Stage::typed(
             "train",
-            1,
-            TrainStage { task, settings, files: train_labels.clone(), blocks: s.downstream.blocks.clone() },
+            2,
+            TrainStage { task, settings, files: train_labels.clone(), tune: tune_labels, blocks: s.downstream.blocks.clone() },
             move |input, p: &TrainStage| {
                 let mut data = vec![];
                 for (path, name) in tf.iter().zip(&p.files) {
                     data.push(moves_of(&input.file(path)?, name)?);
                 }
+                let mut tune = vec![];
+                for (path, name) in tuf.iter().zip(&p.tune) {
+                    tune.push(moves_of(&input.file(path)?, name)?);
+                }
                 let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
-                let model = evaluate::train_and_tune(&data, &p.task, &p.settings, &p.blocks, on_epoch)?;
+                let model = evaluate::train_and_tune(&data, &tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
                 let bpk = model.network()?.to_burnpack(&[])?;
                 Ok(StageOutput::default()
                     .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
@@ -265,45 +282,56 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                     .metric("weight_bytes", model.weight_bytes() as f64))
             },
         )?
-        .reading(train_files.clone()),
+        .reading(read_for_training),
     );
     let tf = test_files.clone();
     let trf = train_files.clone();
     let mut eval_files = train_files.clone();
     eval_files.extend(test_files.iter().cloned());
     stages.push(
-        Stage::typed("eval", 1, EvalStage { train: train_labels, files: test_labels, blocks: s.downstream.blocks.clone() }, move |input, p: &EvalStage| {
-            let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
-            let mut train = vec![];
-            for (path, name) in trf.iter().zip(&p.train) {
-                train.push(junctions_of(&input.file(path)?, name)?);
-            }
-            let mut data = vec![];
-            for (path, name) in tf.iter().zip(&p.files) {
-                data.push((name.clone(), moves_of(&input.file(path)?, name)?));
-            }
-            let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks)?;
-            let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
-            for d in &summary.downstream {
-                // Marlin's 16 blocks keep the plain names; other buffers say theirs.
-                let b = if d.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", d.blocks) };
-                out = out.metric(&format!("{}_width_h{}{b}", d.method, d.horizon), d.width_error_predicted);
-                if d.method != evaluate::NETWORK {
-                    continue;
+        Stage::typed(
+            "eval",
+            2,
+            EvalStage { train: train_labels, files: test_labels, blocks: s.downstream.blocks.clone(), seed: s.experiment.seed },
+            move |input, p: &EvalStage| {
+                let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
+                let mut train = vec![];
+                for (path, name) in trf.iter().zip(&p.train) {
+                    train.push(junctions_of(&input.file(path)?, name)?);
                 }
-                out = out
-                    .metric(&format!("late_planner_h{}{b}", d.horizon), d.late_planner as f64)
-                    .metric(&format!("late_predicted_h{}{b}", d.horizon), d.late_predicted as f64)
-                    .metric(&format!("width_error_planner_h{}{b}", d.horizon), d.width_error_planner)
-                    .metric(&format!("width_error_predicted_h{}{b}", d.horizon), d.width_error_predicted);
-            }
-            for h in &summary.horizons {
-                for m in &h.methods {
-                    out = out.metric(&format!("{}_mae_h{}", m.method, h.horizon), m.mae_deg).metric(&format!("{}_f1_h{}", m.method, h.horizon), m.f1);
+                let mut data = vec![];
+                for (path, name) in tf.iter().zip(&p.files) {
+                    data.push((name.clone(), moves_of(&input.file(path)?, name)?));
                 }
-            }
-            Ok(out)
-        })?
+                let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks, &model.task.horizons, p.seed)?;
+                let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
+                for g in &summary.gains {
+                    let b = if g.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", g.blocks) };
+                    out = out
+                        .metric(&format!("{}_gain_pp_h{}{b}", g.method, g.horizon), g.gain_pp)
+                        .metric(&format!("{}_files_worse_h{}{b}", g.method, g.horizon), g.files_worse as f64);
+                }
+                for d in &summary.downstream {
+                    // Marlin's 16 blocks keep the plain names; other buffers say theirs.
+                    let b = if d.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", d.blocks) };
+                    out = out.metric(&format!("{}_width_h{}{b}", d.method, d.horizon), d.width_error_predicted);
+                    if d.method != evaluate::NETWORK {
+                        continue;
+                    }
+                    out = out
+                        .metric(&format!("late_planner_h{}{b}", d.horizon), d.late_planner as f64)
+                        .metric(&format!("late_predicted_h{}{b}", d.horizon), d.late_predicted as f64)
+                        .metric(&format!("width_error_planner_h{}{b}", d.horizon), d.width_error_planner)
+                        .metric(&format!("width_error_predicted_h{}{b}", d.horizon), d.width_error_predicted);
+                }
+                for h in &summary.horizons {
+                    for m in &h.methods {
+                        out = out.metric(&format!("{}_mae_h{}", m.method, h.horizon), m.mae_deg).metric(&format!("{}_f1_h{}", m.method, h.horizon), m.f1);
+                    }
+                }
+                Ok(out)
+            },
+        )?
         .after(&["train"])
         .reading(eval_files),
     );
