@@ -3,7 +3,6 @@
 //! function on the same rows.
 
 use super::baselines::{self, Knn, KnnParams, Prediction, PreviousLayer, PreviousLayerTrial};
-use super::evaluate::MethodPredictions;
 use super::features::{Task, CORNER_DEG};
 use super::Junction;
 use crate::ModelError;
@@ -62,6 +61,17 @@ pub fn baseline_task(task: &Task, h: usize) -> baselines::Task {
 pub fn fit_knn(train: &[Vec<Junction>], task: &Task) -> Result<Vec<Knn>, ModelError> {
     let paths: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
     task.horizons.iter().map(|&h| Knn::fit(&paths, &baseline_task(task, h), KnnParams::default())).collect()
+}
+
+/// One method's predictions at one horizon for anchors `0..n − H`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MethodPredictions {
+    pub method: String,
+    pub angle_deg: Vec<f64>,
+    /// Corner score (probability, or a 0/1 call for angle-only baselines).
+    pub corner_score: Vec<f64>,
+    /// A corner is called above this score.
+    pub threshold: f64,
 }
 
 fn wrap(method: &str, p: Vec<Prediction>) -> MethodPredictions {

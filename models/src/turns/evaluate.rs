@@ -53,16 +53,14 @@ pub fn score(method: &str, truth: &Truth, angle_deg: &[f64], corner_score: &[f64
     }
 }
 
-/// One method's predictions at one horizon for anchors `0..n − H`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct MethodPredictions {
-    pub method: String,
-    pub angle_deg: Vec<f64>,
-    /// Corner score (probability, or a 0/1 call for angle-only baselines).
-    pub corner_score: Vec<f64>,
-    /// A corner is called above this score.
-    pub threshold: f64,
-}
+pub use super::contenders::MethodPredictions;
+
+/// One file's evaluation, its truths and predictions per horizon, and its
+/// downstream results keyed by (buffer, horizon, method) indices.
+type FileOutcome = (FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>);
+
+/// Method names, corner labels and every method's scores of one horizon (F1 tuning).
+type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
 
 /// The network's and every baseline's predictions of one file at `horizon`
 /// (the network's first), and the network's raw predictions.
@@ -74,8 +72,7 @@ pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Optio
     Ok((out, p))
 }
 
-/// Name of the network in score tables.
-pub const NETWORK: &str = "network";
+pub use super::net::NETWORK;
 
 /// Samples of predicted vs actual turns kept for the report's trace plot.
 pub const TRACE_LEN: usize = 400;
@@ -253,31 +250,28 @@ pub fn evaluate(
     let slots: Vec<usize> = horizons.iter().map(|&h| model.slot(h)).collect::<Result<_, _>>()?;
     let ex = Extrusion::default();
     // Files on every core; each file's horizons and buffers in order.
-    let per_file = crate::parallel::par_map(
-        files,
-        |(name, moves)| -> Result<(FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>), ModelError> {
-            let j = &super::junctions(moves);
-            let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
-            let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
-            let (mut tp, mut downs) = (vec![], vec![]);
-            for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
-                let t = truth(j, &model.task, h);
-                let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
-                for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
-                    downs.push(((b, k, mi), d.clone()));
-                    fe.downstream.push(d);
-                }
-                fe.horizons.push(HorizonScores {
-                    horizon: h,
-                    rows: t.angle_deg.len(),
-                    methods: preds.iter().map(|p| score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect(),
-                });
-                fe.traces.push(trace(j, h, &t, &preds));
-                tp.push((t, preds));
+    let per_file = crate::parallel::par_map(files, |(name, moves)| -> Result<FileOutcome, ModelError> {
+        let j = &super::junctions(moves);
+        let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
+        let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
+        let (mut tp, mut downs) = (vec![], vec![]);
+        for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
+            let t = truth(j, &model.task, h);
+            let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
+            for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
+                downs.push(((b, k, mi), d.clone()));
+                fe.downstream.push(d);
             }
-            Ok((fe, tp, downs))
-        },
-    );
+            fe.horizons.push(HorizonScores {
+                horizon: h,
+                rows: t.angle_deg.len(),
+                methods: preds.iter().map(|p| score(&p.method, &t, &p.angle_deg, &p.corner_score, p.threshold)).collect(),
+            });
+            fe.traces.push(trace(j, h, &t, &preds));
+            tp.push((t, preds));
+        }
+        Ok((fe, tp, downs))
+    });
     let mut out = vec![];
     let mut pooled: Vec<(Truth, Vec<MethodPredictions>)> = vec![];
     // By (buffer, horizon, method), in that order.
@@ -380,7 +374,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
         }
         Ok((f1, gains))
     });
-    let (mut f1_data, mut gains): (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<CallGain>>>) = (vec![], vec![]);
+    let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<Vec<CallGain>>>) = (vec![], vec![]);
     for r in per_file {
         let (f1, g) = r?;
         for (k, (names, labels, scores)) in f1.into_iter().enumerate() {

@@ -12,6 +12,9 @@ use crate::ModelError;
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// Name of the network in score tables.
+pub const NETWORK: &str = "network";
+
 /// Schema tag of the stored model; bump when the layout changes.
 pub const TURN_MODEL_SCHEMA: &str = "fdmlab.turn-model/1";
 /// Random stream of the initial weights.
@@ -253,7 +256,7 @@ impl TurnModel {
     /// buffer of `blocks` at `horizon`: the network's [`Self::call_threshold`], a
     /// baseline's tuned one, else `fallback` (its F1 threshold).
     pub fn method_call_threshold(&self, method: &str, blocks: usize, horizon: usize, fallback: f64) -> Result<f64, ModelError> {
-        if method == super::evaluate::NETWORK {
+        if method == NETWORK {
             return self.call_threshold(blocks, horizon);
         }
         Ok(self.baselines.as_ref().and_then(|b| b.threshold(method, blocks, horizon)).unwrap_or(fallback))
