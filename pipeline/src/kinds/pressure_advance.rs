@@ -191,7 +191,7 @@ pub struct ExportSpec {
 
 impl Default for ExportSpec {
     fn default() -> Self {
-        ExportSpec { formats: ["marlin", "klipper", "reprap", "orca", "c-header", "json"].iter().map(|s| s.to_string()).collect(), set: BTreeMap::new() }
+        ExportSpec { formats: ["marlin", "klipper", "reprap", "c-header", "json"].iter().map(|s| s.to_string()).collect(), set: BTreeMap::new() }
     }
 }
 
