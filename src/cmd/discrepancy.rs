@@ -116,9 +116,10 @@ struct HiddenArgs {
     /// Effect-free logs per noise level.
     #[arg(long = "null-cases", default_value_t = HiddenOptions::default().null_cases)]
     null_cases: usize,
-    /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal only: a
-    /// two-node plant of another form, integrated adaptively, with effects outside
-    /// the library; `--seeds` replicates, `--null-cases` effect-free cases per noise level).
+    /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal: a
+    /// two-node plant; extrusion: a compressible power-law melt; both of another form,
+    /// integrated adaptively, with effects outside the library; `--seeds` replicates,
+    /// `--null-cases` effect-free cases per noise level).
     #[arg(long, value_enum, default_value_t = SetKind::Hidden)]
     set: SetKind,
 }
@@ -128,7 +129,7 @@ struct HiddenArgs {
 enum SetKind {
     /// The domain's own hidden-effect generator.
     Hidden,
-    /// The model-form mismatch generator (thermal).
+    /// The model-form mismatch generator (thermal, extrusion).
     Mismatch,
 }
 
@@ -240,7 +241,8 @@ fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if h.set == SetKind::Mismatch {
         return match domain {
             DomainName::Thermal => mismatch_thermal(&h, ctx),
-            _ => Err(bad(format!("--set mismatch exists for the thermal domain only, not {}", domain.name()))),
+            DomainName::Extrusion => mismatch_extrusion(&h, ctx),
+            DomainName::Motion => Err(bad("--set mismatch exists for the thermal and extrusion domains, not motion (yet)")),
         };
     }
     match domain {
@@ -290,6 +292,23 @@ fn mismatch_thermal(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let cases = tm::generate(&opts).map_err(|e| bad(e.to_string()))?;
     let answers = cases.iter().map(|c| Ok((&c.data, serde_json::to_value(&c.answer)?))).collect::<anyhow::Result<Vec<_>>>()?;
     write_thermal_set(&h.out, tm::GENERATOR, opts.seed, &serde_json::to_value(&opts)?, answers.into_iter(), ctx)
+}
+
+/// `fdmlab discrepancy hidden --domain extrusion --set mismatch`: the model-form
+/// mismatch set of `models::discrepancy::extrusion::mismatch` (`--samples` is unused:
+/// the logs follow the hidden set's protocol).
+fn mismatch_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::extrusion::mismatch as em;
+    let opts = em::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
+    let cases = em::generate(&opts).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::hidden_set_files(
+        "extrusion",
+        em::GENERATOR,
+        opts.seed,
+        &opts,
+        cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer)),
+    )?;
+    write_hidden(&h.out, "extrusion", em::GENERATOR, h.seed, files, ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion`: the full set of

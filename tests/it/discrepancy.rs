@@ -18,8 +18,25 @@ struct Verdict {
 
 #[test]
 fn hidden_effects_are_named_and_the_gap_shrinks() {
+    check_hidden_set(HiddenOptions::default().seed);
+}
+
+/// Seeds of the thermal hidden set never run while the workflow or its gate were
+/// developed (the default seed 11 was; issue #27, Deliver 3). Add new seeds, never
+/// swap them for ones that pass.
+const UNTOUCHED_SEEDS: [u64; 2] = [7311, 7312];
+
+#[test]
+fn hidden_effects_are_named_on_untouched_seeds() {
+    for seed in UNTOUCHED_SEEDS {
+        check_hidden_set(seed);
+    }
+}
+
+/// The issue's criteria on the hidden set of `seed`; panics with the failures listed.
+fn check_hidden_set(seed: u64) {
     // 125 logs: 20 effect-free, 7 effects × 3 magnitudes × 2 noise levels × 2 seeds, 21 pairs.
-    let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, ..Default::default() };
+    let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, seed, ..Default::default() };
     let cases = hidden::generate(&Twin::default(), &opts).expect("hidden set");
     let verdicts: Vec<Verdict> = std::thread::scope(|s| {
         let chunks: Vec<_> = cases
@@ -58,12 +75,16 @@ fn hidden_effects_are_named_and_the_gap_shrinks() {
     let right = qualifying.iter().filter(|v| v.named == v.truth).count();
     let wrong: Vec<String> = qualifying.iter().filter(|v| v.named != v.truth).map(|v| format!("{:?} → {:?}", v.truth, v.named)).collect();
     assert!(qualifying.len() >= 40, "{}", qualifying.len());
-    eprintln!("thermal hidden set: {false_named} of {} effect-free logs named an effect; {right} of {} qualifying cases right", null.len(), qualifying.len());
+    eprintln!(
+        "thermal hidden set, seed {seed}: {false_named} of {} effect-free logs named an effect; {right} of {} qualifying cases right",
+        null.len(),
+        qualifying.len()
+    );
     // ≥ 95 % of cases whose effects exceed 3× noise RMS get exactly the right effects.
-    assert!(right * 100 >= 95 * qualifying.len(), "{right} of {} right; wrong: {wrong:?}", qualifying.len());
+    assert!(right * 100 >= 95 * qualifying.len(), "seed {seed}: {right} of {} right; wrong: {wrong:?}", qualifying.len());
     // Where the effects were named, the residual RMS falls by ≥ 50 %.
     for v in qualifying.iter().filter(|v| v.named == v.truth) {
-        assert!(v.rms_after <= 0.5 * v.rms_before, "{:?}: {} → {}", v.truth, v.rms_before, v.rms_after);
+        assert!(v.rms_after <= 0.5 * v.rms_before, "seed {seed}, {:?}: {} → {}", v.truth, v.rms_before, v.rms_after);
     }
 }
 

@@ -9,6 +9,7 @@
 //! winners are re-identified by simulation with K ([`identify`]).
 
 pub mod hidden;
+pub mod mismatch;
 pub mod plant;
 
 use super::simfit;

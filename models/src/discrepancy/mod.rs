@@ -52,7 +52,9 @@
 pub mod extrusion;
 pub mod gate;
 pub mod hidden;
+pub mod mismatch;
 pub mod motion;
+pub mod ode;
 pub mod select;
 pub mod simfit;
 pub mod stats;
