@@ -5,7 +5,7 @@
 //! `answers.json` only, on seeds never used while developing.
 
 use crate::common::Sandbox;
-use fdmlab_models::discrepancy::{thermal, Report, SelectOptions};
+use fdmlab_models::discrepancy::{thermal, Report, ValidSelectOptions};
 use fdmlab_models::parallel::par_map;
 
 /// Seeds of the graded sets. UNTOUCHED: they were not run while the workflow, its
@@ -57,7 +57,7 @@ fn grade_set(seed: u64) -> Vec<Graded> {
         let file = c["file"].as_str().expect("file").to_string();
         let text = std::fs::read_to_string(dir.join(&file)).expect("case file");
         let (log, _) = fdmlab_datasets::thermal::read_log(&text, &file, &Default::default()).expect("log");
-        let o = thermal::discrepancy(vec![log], None, &SelectOptions::default()).expect("workflow");
+        let o = thermal::discrepancy(vec![log], None, &ValidSelectOptions::default()).expect("workflow");
         let a = &c["answer"];
         let strings = |v: &serde_json::Value| -> Vec<String> { v.as_array().expect("list").iter().map(|s| s.as_str().expect("name").to_string()).collect() };
         let r: &Report = &o.report;
