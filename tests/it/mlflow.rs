@@ -246,7 +246,10 @@ fn a_trained_turn_network_is_registered_under_its_alias() {
         .map(|o| (format!("models/turns-train/{}", o["name"].as_str().expect("name")), o["hash"].as_str().expect("hash").to_string()))
         .collect();
     assert!(outputs.iter().any(|(f, _)| f.ends_with(".json")) && outputs.iter().any(|(f, _)| f.ends_with(".bpk")), "{outputs:?}");
-    assert_eq!(rest.artifacts(mlflow_run, "models/turns-train"), outputs.iter().map(|(f, _)| f.clone()).collect::<Vec<_>>());
+    // MLflow lists a folder sorted by name.
+    let mut expected: Vec<String> = outputs.iter().map(|(f, _)| f.clone()).collect();
+    expected.sort();
+    assert_eq!(rest.artifacts(mlflow_run, "models/turns-train"), expected);
     let exp_id = p["experiment_id"].as_str().expect("experiment id");
     for (file, hash) in &outputs {
         let (status, bytes) = rest.send(rest.http.get(format!("{}/api/2.0/mlflow-artifacts/artifacts/{exp_id}/{mlflow_run}/artifacts/{file}", rest.base)));
