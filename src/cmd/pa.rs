@@ -643,8 +643,7 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
         support: vec![],
     };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
-    let row: Vec<f64> = tb.design.row(0).iter().copied().collect();
-    super::time_c_program("ka.h", header, &timing_program(&row), 3)
+    super::time_c_program("ka.h", header, &timing_program(tb.design.row(0)), 3)
 }
 
 /// The timing harness (`ka_predict_timing.c`) for an input row.
