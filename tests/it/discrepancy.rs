@@ -4,7 +4,7 @@
 use crate::common::{stderr, Sandbox};
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
 use fdmlab_models::discrepancy::thermal::discrepancy;
-use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::discrepancy::ValidSelectOptions;
 use fdmlab_models::thermal::twin::Twin;
 
 /// One case's verdict.
@@ -46,7 +46,7 @@ fn check_hidden_set(seed: u64) {
                     chunk
                         .iter()
                         .map(|c| {
-                            let o = discrepancy(vec![c.data.clone()], None, &SelectOptions::default()).expect("workflow");
+                            let o = discrepancy(vec![c.data.clone()], None, &ValidSelectOptions::default()).expect("workflow");
                             let mut named: Vec<String> = o.report.effects.iter().map(|e| e.name.clone()).collect();
                             named.sort();
                             let mut truth = c.answer.effects.clone();
@@ -241,4 +241,26 @@ fn bad_data_is_refused_with_its_location_and_writes_nothing() {
     assert!(!sb.path().join("rep").exists());
     let out = sb.run(&["discrepancy", "--domain", "thermal"]);
     assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn selection_limits_are_one_table_for_the_cli_and_the_spec() {
+    // The limits of `SelectOptions::check` (max_effects 1–7, alpha in (0, 0.5)),
+    // reached from the CLI and from a spec; nothing is run or written.
+    let sb = Sandbox::new();
+    sb.write("log.csv", "time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,22\n1,0.5,0,22\n");
+    for n in ["0", "50"] {
+        let out = sb.run(&["discrepancy", "--domain", "thermal", "--data", "log.csv", "--max-effects", n]);
+        assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+        let err = stderr(&out);
+        assert!(err.contains("--max-effects") && err.contains(&format!("`max_effects` = {n}")) && err.contains("1–7"), "{err}");
+    }
+    let spec = std::fs::read_to_string(crate::common::experiments().join("discrepancy-thermal.toml")).expect("bundled spec");
+    sb.write("a.toml", &spec.replace("alpha = 0.01", "alpha = 0.7"));
+    let out = sb.run(&["run", "a.toml"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let err = stderr(&out);
+    // Located at the key's line (line 14 of the bundled spec) and naming it.
+    assert!(err.contains("a.toml:14") && err.contains("discrepancy.alpha") && err.contains("(0, 0.5)"), "{err}");
+    assert!(!sb.store().join("runs").exists(), "nothing written");
 }

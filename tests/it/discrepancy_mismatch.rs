@@ -6,7 +6,7 @@
 //! graded from `answers.json` only, on seeds never used while developing.
 
 use crate::common::Sandbox;
-use fdmlab_models::discrepancy::{extrusion, thermal, Report, SelectOptions};
+use fdmlab_models::discrepancy::{extrusion, thermal, Report, ValidSelectOptions};
 use fdmlab_models::parallel::par_map;
 
 /// Seeds of the graded thermal sets. UNTOUCHED: they were not run while the
@@ -64,7 +64,7 @@ fn grade_set(domain: &str, seed: u64) -> Vec<Graded> {
     par_map(&cases, |c| {
         let file = c["file"].as_str().expect("file").to_string();
         let text = std::fs::read_to_string(dir.join(&file)).expect("case file");
-        let opts = SelectOptions::default();
+        let opts = ValidSelectOptions::default();
         let report = if domain == "thermal" {
             let (log, _) = fdmlab_datasets::thermal::read_log(&text, &file, &Default::default()).expect("log");
             thermal::discrepancy(vec![log], None, &opts).expect("workflow").report
