@@ -9,7 +9,6 @@ pub mod gcode;
 pub mod hbot;
 pub mod pa;
 pub mod thermal;
-pub mod turnnet;
 pub mod turns;
 
 pub use error::DatasetError;

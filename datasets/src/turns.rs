@@ -12,14 +12,58 @@ use serde::Deserialize;
 use crate::gcode::stream;
 use crate::DatasetError;
 
+pub mod stored;
+
 /// Open a G-code file for streaming; a name ending in `.gz` is decompressed on the fly.
+/// A path that is not a file is the user's error, named.
 pub fn open(path: &Path) -> Result<Box<dyn BufRead>, DatasetError> {
+    if !path.is_file() {
+        return Err(DatasetError::parse(&path.display().to_string(), 0, "file", "no such file"));
+    }
     let f = File::open(path).map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
     Ok(if path.extension().is_some_and(|e| e == "gz") {
         Box::new(BufReader::with_capacity(1 << 16, flate2::read::MultiGzDecoder::new(f)))
     } else {
         Box::new(BufReader::with_capacity(1 << 16, f))
     })
+}
+
+/// The moves of G-code bytes (as stored in the store), gunzipped when they
+/// start with the gzip magic; `file` names them in errors, with the line.
+pub fn moves_of_bytes(bytes: &[u8], file: &str) -> Result<Vec<Move>, DatasetError> {
+    if bytes.starts_with(&[0x1f, 0x8b]) {
+        return stream::moves(BufReader::new(flate2::read::MultiGzDecoder::new(bytes)), file).collect();
+    }
+    stream::moves(BufReader::new(bytes), file).collect()
+}
+
+/// `*.gcode` or `*.gcode.gz`.
+fn is_gcode(p: &Path) -> bool {
+    let n = p.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+    n.ends_with(".gcode") || n.ends_with(".gcode.gz")
+}
+
+/// G-code files named by `paths`: files as given, folders by their `*.gcode(.gz)`
+/// (sorted by name, not recursive). A missing path or an empty folder is bad input.
+pub fn gcode_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>, DatasetError> {
+    let mut out = vec![];
+    for p in paths {
+        let name = p.display().to_string();
+        if p.is_dir() {
+            let entries = std::fs::read_dir(p).map_err(|source| DatasetError::Io { path: name.clone(), source })?;
+            let mut found: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|f| f.is_file() && is_gcode(f)).collect();
+            if found.is_empty() {
+                return Err(DatasetError::parse(&name, 0, "folder", "holds no *.gcode or *.gcode.gz"));
+            }
+            found.sort();
+            out.extend(found);
+        } else if p.is_file() {
+            out.push(p.clone());
+        } else {
+            return Err(DatasetError::parse(&name, 0, "file", "no such file or folder"));
+        }
+    }
+    Ok(out)
 }
 
 /// All XY moves of a G-code file (plain or `.gz`).

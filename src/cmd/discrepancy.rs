@@ -114,13 +114,6 @@ enum SetKind {
 }
 
 /// A refused selection option named by its flag (`--max-effects: invalid parameter …`).
-fn flag_error(e: fdmlab_models::ModelError) -> String {
-    match &e {
-        fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("--{}: {e}", name.replace('_', "-")),
-        _ => e.to_string(),
-    }
-}
-
 fn bad(msg: impl Into<String>) -> anyhow::Error {
     Error::bad_input(msg).into()
 }
@@ -152,7 +145,7 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if a.data.is_empty() {
         return Err(bad("--data FILE is required"));
     }
-    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity }.check().map_err(|e| bad(flag_error(e)))?;
+    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity }.check().map_err(super::flag_error)?;
     let read = ReadSettings {
         format: a.format.map(|f| value_name(&f)),
         interval_s: a.interval,

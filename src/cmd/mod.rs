@@ -162,7 +162,6 @@ impl Drop for TrainBar {
     }
 }
 
-/// Exit code of an error: 2 when the input is at fault, else 1.
 /// Read an input file the user named: a missing or unreadable file is bad
 /// input (exit 2), and bytes that are not UTF-8 are located by line.
 pub fn read_input(path: &std::path::Path) -> anyhow::Result<Vec<u8>> {
@@ -177,6 +176,16 @@ pub fn read_input_text(path: &std::path::Path) -> anyhow::Result<String> {
         let line = e.as_bytes()[..e.utf8_error().valid_up_to()].iter().filter(|b| **b == b'\n').count() + 1;
         fdmlab_pipeline::Error::Input { file: path.display().to_string(), line, column: 0, key: "text".into(), message: "not valid UTF-8".into() }.into()
     })
+}
+
+/// A checked parameter's error as bad command-line input, naming its flag
+/// (`--max-effects: invalid parameter …`).
+pub fn flag_error(e: fdmlab_models::ModelError) -> anyhow::Error {
+    let msg = match &e {
+        fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("--{}: {e}", name.replace('_', "-")),
+        _ => e.to_string(),
+    };
+    fdmlab_pipeline::Error::bad_input(msg).into()
 }
 
 /// Exit code of an error: 2 when the input is at fault, else 1.

@@ -128,14 +128,6 @@ pub fn turns(cmd: TurnsCommand, ctx: &Ctx) -> anyhow::Result<()> {
     }
 }
 
-/// Read a G-code file the user named; a missing file is bad input.
-pub fn read_moves(path: &Path) -> anyhow::Result<Vec<Move>> {
-    if !path.is_file() {
-        return Err(fdmlab_pipeline::Error::bad_input(format!("{}: no such file", path.display())).into());
-    }
-    Ok(corpus::read_moves(path)?)
-}
-
 fn write_csv(path: &Path, header: &str, rows: impl Iterator<Item = String>) -> anyhow::Result<()> {
     let mut text = String::from(header);
     text.push('\n');
@@ -148,7 +140,7 @@ fn write_csv(path: &Path, header: &str, rows: impl Iterator<Item = String>) -> a
 }
 
 fn moves(a: MovesArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let m = read_moves(&a.file)?;
+    let m = corpus::read_moves(&a.file)?;
     let j = junctions(&m);
     let layers = m.iter().map(|m| m.layer).collect::<std::collections::BTreeSet<_>>().len();
     let sharp = j.iter().filter(|j| j.turn_deg > 45.0).count();
@@ -187,7 +179,7 @@ fn planner(a: PlannerArgs, ctx: &Ctx) -> anyhow::Result<()> {
         },
     };
     let p = params.check()?;
-    let m = read_moves(&a.file)?;
+    let m = corpus::read_moves(&a.file)?;
     let j = junctions(&m);
     let k = p.knowledge(&m);
     let (buffered, unlimited) = p.plan(&m);
@@ -232,7 +224,7 @@ fn planner(a: PlannerArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 fn baselines_cmd(a: BaselinesArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let task = HorizonTask { horizon: a.horizon, corner_deg: a.corner_deg, corner_window_mm: a.corner_window_mm }.check()?;
-    let j = junctions(&read_moves(&a.file)?);
+    let j = junctions(&corpus::read_moves(&a.file)?);
     let train_paths: Vec<PathBuf> = if a.train.is_empty() {
         let dir = corpus::shipped_corpus();
         let manifest = corpus::Manifest::read(&dir)?;
@@ -240,7 +232,7 @@ fn baselines_cmd(a: BaselinesArgs, ctx: &Ctx) -> anyhow::Result<()> {
     } else {
         a.train.clone()
     };
-    let train: Vec<Vec<Junction>> = train_paths.iter().map(|p| read_moves(p).map(|m| junctions(&m))).collect::<anyhow::Result<_>>()?;
+    let train: Vec<Vec<Junction>> = train_paths.iter().map(|p| corpus::read_moves(p).map(|m| junctions(&m))).collect::<Result<_, _>>()?;
     let refs: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
     let knn = baselines::Knn::fit(&refs, &task, KnnParams::default())?;
     let truth = baselines::targets(&j, &task);

@@ -5,9 +5,8 @@
 
 use super::turns_net::{scores_text, task_of, TrainArgs};
 use super::Ctx;
-use fdmlab_datasets::turns::slicer_of;
+use fdmlab_datasets::turns::{gcode_files, read_moves, slicer_of};
 use fdmlab_models::turns::{evaluate, net, Move};
-use fdmlab_pipeline::kinds::turn_prediction::{gcode_files, read_moves};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 

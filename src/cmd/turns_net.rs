@@ -2,13 +2,14 @@
 //! export turns`, `fdmlab bench turns-train`.
 
 use super::Ctx;
-use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
+use fdmlab_datasets::turns::stored::{self, export::TurnExportFormat};
+use fdmlab_datasets::turns::{gcode_files, moves_of_bytes, read_moves};
+use fdmlab_models::turns::downstream::check_blocks;
 use fdmlab_models::turns::downstream::Downstream;
 use fdmlab_models::turns::evaluate;
 use fdmlab_models::turns::features::Task;
 use fdmlab_models::turns::net::{self, TurnModel};
 use fdmlab_models::turns::{Junction, Move};
-use fdmlab_pipeline::kinds::turn_prediction::{check_blocks, check_task, gcode_files, read_moves};
 use fdmlab_pipeline::runs;
 use fdmlab_pipeline::stage::{Artifact, InputRef};
 use fdmlab_pipeline::store::write_file_atomic;
@@ -139,7 +140,7 @@ pub fn load_model(store: &Store, id: &str) -> anyhow::Result<Loaded> {
         }
     };
     let bytes = store.get(&hash)?;
-    Ok(Loaded { model: turnnet::model_from_json(&bytes, &format!("blob {}", hash.0))?, hash, run })
+    Ok(Loaded { model: stored::model_from_json(&bytes, &format!("blob {}", hash.0))?, hash, run })
 }
 
 /// The training G-code of the run that trained a model (the kNN baseline's
@@ -149,7 +150,7 @@ fn training_junctions(store: &Store, run: Option<&runs::RunRecord>) -> anyhow::R
     let Some(run) = run else { return Ok(out) };
     let Some(stage) = run.stages.iter().find(|s| s.outputs.iter().any(|o| o.name == MODEL_ARTIFACT)) else { return Ok(out) };
     for i in stage.inputs.iter().filter(|i| i.name.starts_with("file:")) {
-        out.push(fdmlab_pipeline::kinds::turn_prediction::junctions_of(&store.get(&i.hash)?, &i.name)?);
+        out.push(fdmlab_models::turns::junctions(&moves_of_bytes(&store.get(&i.hash)?, &i.name)?));
     }
     Ok(out)
 }
@@ -161,8 +162,8 @@ pub fn train_help(what: &str, default: impl Fn(&fdmlab_models::nets::TrainParams
 
 pub(super) fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
     let t = Task { horizons: a.horizons.clone(), corner_window_mm: a.corner_window_mm };
-    check_task(&t).map_err(Error::bad_input)?;
-    check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
+    t.check().map_err(super::flag_error)?;
+    check_blocks(&a.blocks).map_err(super::flag_error)?;
     Ok(t)
 }
 
@@ -180,7 +181,7 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
         let bytes = super::read_input(f)?;
         // `file:` inputs are the training files (kNN's references); `tune:` the tuning files.
         inputs.push(InputRef { name: format!("{}:{}", if tuning { "tune" } else { "file" }, f.display()), hash: store.put(&bytes)? });
-        let moves = fdmlab_pipeline::kinds::turn_prediction::moves_of(&bytes, &f.display().to_string())?;
+        let moves = moves_of_bytes(&bytes, &f.display().to_string())?;
         if tuning {
             tune.push(moves)
         } else {
@@ -193,7 +194,7 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let model = evaluate::train_and_tune(&data, &tune, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
     let train_s = t1.elapsed().as_secs_f64();
     drop(bar);
-    let json = turnnet::model_to_json(&model)?;
+    let json = stored::model_to_json(&model)?;
     let bpk = model.network()?.to_burnpack(&[])?;
     let names = |v: &[PathBuf]| v.iter().map(|f| f.display().to_string()).collect::<Vec<_>>();
     let params_json = serde_json::json!({"gcode": names(&files), "tune": names(&tune_files), "task": task, "settings": params, "blocks": a.blocks});
@@ -234,9 +235,6 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn one_file(file: &std::path::Path) -> anyhow::Result<(Vec<Move>, Vec<Junction>)> {
-    if !file.is_file() {
-        return Err(Error::Input { file: file.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file".into() }.into());
-    }
     let moves = read_moves(file)?;
     let j = fdmlab_models::turns::junctions(&moves);
     Ok((moves, j))
@@ -310,7 +308,7 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     for &h in &a.horizon {
         model.slot(h)?;
     }
-    check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
+    check_blocks(&a.blocks).map_err(super::flag_error)?;
     let paths = gcode_files(&a.files)?;
     let mut files = vec![];
     let mut slicers = vec![];
@@ -393,7 +391,7 @@ pub fn predict(a: PredictArgs, ctx: &Ctx) -> anyhow::Result<()> {
 pub fn export(a: ExportTurnsArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let Loaded { model, hash, .. } = load_model(&store, &a.model)?;
-    let text = turnnet::export::export(&model, a.format.format(), &format!("model {}", &hash.0[..12]))?;
+    let text = stored::export::export(&model, a.format.format(), &format!("model {}", &hash.0[..12]))?;
     match &a.output {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
@@ -487,7 +485,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 /// Compile the C header with `cc -O2` and time 1e6 predictions of one feature row.
 fn c_inference_us(model: &TurnModel, row: &[f32]) -> anyhow::Result<Option<f64>> {
-    let header = turnnet::export::export(model, TurnExportFormat::CHeader, "bench")?;
+    let header = stored::export::export(model, TurnExportFormat::CHeader, "bench")?;
     let xs: Vec<String> = row.iter().map(|v| format!("{v:e}f")).collect();
     // The timing program, with the row as a macro defined before it.
     let main = format!("#define FDMLAB_ROW {}\n{}", xs.join(","), include_str!("turns_c_bench.c"));

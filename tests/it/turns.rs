@@ -171,8 +171,8 @@ fn c_header_compiles_and_matches_burn() {
     let rec = sb.json(&["runs", "show", run]);
     let hash =
         rec["stages"][0]["outputs"].as_array().and_then(|o| o.iter().find(|x| x["name"] == "turn-model.json")).and_then(|o| o["hash"].as_str()).expect("model");
-    let model = fdmlab_datasets::turnnet::model_from_json(&sb.run(&["cat", hash]).stdout, "model").expect("model");
-    let moves = fdmlab_pipeline::kinds::turn_prediction::read_moves(&sb.path().join("test/held.gcode")).expect("moves");
+    let model = fdmlab_datasets::turns::stored::model_from_json(&sb.run(&["cat", hash]).stdout, "model").expect("model");
+    let moves = fdmlab_datasets::turns::read_moves(&sb.path().join("test/held.gcode")).expect("moves");
     let j = fdmlab_models::turns::junctions(&moves);
     let x = fdmlab_models::turns::features::features(&j, &model.task);
     let cols = model.task.inputs();

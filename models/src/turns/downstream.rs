@@ -23,6 +23,19 @@ use serde::{Deserialize, Serialize};
 /// Turn above which a junction is sharp, degrees (the corner).
 pub const SHARP_DEG: f64 = 45.0;
 
+/// Check the planner buffers the line width is scored at (the CLI's `--blocks`,
+/// the kind's `[downstream] blocks`):
+///
+/// | field | default | limits |
+/// |---|---|---|
+/// | `blocks` | `[16, 4, 2]` | 1–4 distinct buffer sizes, each 1–64 blocks |
+pub fn check_blocks(b: &[usize]) -> Result<(), crate::ModelError> {
+    if b.is_empty() || b.len() > 4 || b.iter().any(|&n| n == 0 || n > 64) || (1..b.len()).any(|i| b[..i].contains(&b[i])) {
+        return Err(crate::ModelError::invalid("blocks", format!("{b:?}"), "give 1–4 distinct buffer sizes within 1–64 blocks"));
+    }
+    Ok(())
+}
+
 /// Extrusion settings of the downstream twin.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Extrusion {

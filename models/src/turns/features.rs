@@ -16,6 +16,7 @@
 //! beyond it.
 
 use super::Junction;
+use crate::ModelError;
 use serde::{Deserialize, Serialize};
 
 /// Recent junctions in the window.
@@ -47,6 +48,27 @@ impl Default for Task {
 }
 
 impl Task {
+    /// Check the horizons and the corner window (one table for the CLI, the
+    /// `turn-prediction` kind and the library):
+    ///
+    /// | field | default | limits |
+    /// |---|---|---|
+    /// | `horizons` | `[16, 32, 64]` | 1–8 distinct horizons, each 1–1024 junctions |
+    /// | `corner_window_mm` | 10 | 0–1000 mm |
+    pub fn check(&self) -> Result<(), ModelError> {
+        let h = &self.horizons;
+        let mut distinct = h.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        if h.is_empty() || h.len() > 8 || h.iter().any(|&h| h == 0 || h > 1024) || distinct.len() != h.len() {
+            return Err(ModelError::invalid("horizons", format!("{h:?}"), "give 1–8 distinct horizons within 1–1024 junctions"));
+        }
+        if !(self.corner_window_mm.is_finite() && (0.0..=1000.0).contains(&self.corner_window_mm)) {
+            return Err(ModelError::invalid("corner_window_mm", self.corner_window_mm, "must be within 0–1000 mm"));
+        }
+        Ok(())
+    }
+
     /// Number of network inputs.
     pub fn inputs(&self) -> usize {
         3 * WINDOW + 1 + PRIOR_LAYERS.len() * (3 + 2 * self.horizons.len()) + 2
@@ -224,6 +246,19 @@ pub fn targets(j: &[Junction], task: &Task, i: usize) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_task_check_follows_its_limits_table() {
+        let t = |horizons: &[usize], w: f64| Task { horizons: horizons.to_vec(), corner_window_mm: w }.check();
+        assert!(t(&[16, 32, 64], 10.0).is_ok() && t(&[1, 1024], 0.0).is_ok() && t(&[1; 1], 1000.0).is_ok());
+        // A repeat that is not adjacent is a repeat too.
+        for bad in [&[][..], &[0, 16], &[1025], &[16, 32, 16], &[1, 2, 3, 4, 5, 6, 7, 8, 9]] {
+            assert!(matches!(t(bad, 10.0), Err(ModelError::InvalidParameter { ref name, .. }) if name == "horizons"), "{bad:?}");
+        }
+        for w in [-0.1, 1000.1, f64::NAN] {
+            assert!(matches!(t(&[16], w), Err(ModelError::InvalidParameter { ref name, .. }) if name == "corner_window_mm"), "{w}");
+        }
+    }
 
     fn jn(x: f64, y: f64, heading: f64, turn: f64, layer: u32, dist: f64) -> Junction {
         Junction {

@@ -1,17 +1,18 @@
 //! Kind `turn-prediction`: G-code corpus → junctions → the turn network
 //! (`train`) → the network against every baseline on held-out G-code at each
-//! horizon (`eval`) → C header and JSON (`export`) → report. Also the G-code
-//! reading shared with `fdmlab turns …`.
+//! horizon (`eval`) → C header and JSON (`export`) → report.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
-use fdmlab_datasets::turnnet::{self, export::TurnExportFormat};
+use fdmlab_datasets::turns::moves_of_bytes;
+use fdmlab_datasets::turns::stored::{self, export::TurnExportFormat};
 use fdmlab_models::nets::{Schedule, TrainParams, ValidTrainParams};
+use fdmlab_models::turns::downstream;
 use fdmlab_models::turns::evaluate::{self, FileEval};
 use fdmlab_models::turns::features::Task;
 use fdmlab_models::turns::net;
-use fdmlab_models::turns::{Junction, Move};
+use fdmlab_models::turns::Move;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -107,83 +108,6 @@ impl Default for ExportSection {
     }
 }
 
-/// Check a task's horizons and corner window.
-pub fn check_task(t: &Task) -> std::result::Result<(), String> {
-    if t.horizons.is_empty() || t.horizons.len() > 8 || t.horizons.iter().any(|&h| h == 0 || h > 1024) {
-        return Err(format!("horizons {:?}: give 1–8 horizons within 1–1024 junctions", t.horizons));
-    }
-    let mut sorted = t.horizons.clone();
-    sorted.dedup();
-    if sorted.len() != t.horizons.len() {
-        return Err(format!("horizons {:?} repeat a value", t.horizons));
-    }
-    if !(t.corner_window_mm.is_finite() && (0.0..=1000.0).contains(&t.corner_window_mm)) {
-        return Err(format!("corner_window_mm {} must be within 0–1000", t.corner_window_mm));
-    }
-    Ok(())
-}
-
-/// `*.gcode` or `*.gcode.gz`.
-fn is_gcode(p: &Path) -> bool {
-    let n = p.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-    n.ends_with(".gcode") || n.ends_with(".gcode.gz")
-}
-
-/// G-code files named by `paths`: files as given, folders by their `*.gcode(.gz)`
-/// (sorted by name, not recursive). A missing path or an empty folder is bad input.
-pub fn gcode_files(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
-    let mut out = vec![];
-    for p in paths {
-        if p.is_dir() {
-            let mut found: Vec<PathBuf> =
-                std::fs::read_dir(p).map_err(|e| Error::io(p, e))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|f| f.is_file() && is_gcode(f)).collect();
-            if found.is_empty() {
-                return Err(Error::Input {
-                    file: p.display().to_string(),
-                    line: 0,
-                    column: 0,
-                    key: String::new(),
-                    message: "folder holds no *.gcode or *.gcode.gz".into(),
-                });
-            }
-            found.sort();
-            out.extend(found);
-        } else if p.is_file() {
-            out.push(p.clone());
-        } else {
-            return Err(Error::Input { file: p.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file or folder".into() });
-        }
-    }
-    Ok(out)
-}
-
-/// The moves of G-code bytes, gzipped when they start with the gzip magic
-/// (`file` names it in errors, with the line).
-pub fn moves_of(bytes: &[u8], file: &str) -> Result<Vec<Move>> {
-    Ok(turnnet::moves_of_bytes(bytes, file)?)
-}
-
-/// The junctions of G-code bytes.
-pub fn junctions_of(bytes: &[u8], file: &str) -> Result<Vec<Junction>> {
-    Ok(fdmlab_models::turns::junctions(&moves_of(bytes, file)?))
-}
-
-/// The moves of a G-code file on disk (plain or `.gz`, streamed).
-pub fn read_moves(path: &Path) -> Result<Vec<Move>> {
-    if !path.is_file() {
-        return Err(Error::Input { file: path.display().to_string(), line: 0, column: 0, key: String::new(), message: "no such file".into() });
-    }
-    Ok(fdmlab_datasets::turns::read_moves(path)?)
-}
-
-/// Planner buffers of the downstream comparison: 1–4 distinct sizes within 1–64 blocks.
-pub fn check_blocks(b: &[usize]) -> std::result::Result<(), String> {
-    if b.is_empty() || b.len() > 4 || b.iter().any(|&n| n == 0 || n > 64) || (1..b.len()).any(|i| b[..i].contains(&b[i])) {
-        return Err(format!("{b:?}: give 1–4 distinct buffer sizes within 1–64 blocks"));
-    }
-    Ok(())
-}
-
 /// Parameters of the `train` stage.
 #[derive(Debug, Clone, Serialize)]
 struct TrainStage {
@@ -226,20 +150,28 @@ fn label(spec: &SpecFile, p: &Path) -> String {
     p.strip_prefix(spec.dir()).unwrap_or(p).display().to_string()
 }
 
+/// The parameter a model error names (`horizons`, …), or `horizons`.
+fn param_name(e: &fdmlab_models::ModelError) -> &str {
+    match e {
+        fdmlab_models::ModelError::InvalidParameter { name, .. } => name,
+        _ => "horizons",
+    }
+}
+
 fn resolve(spec: &SpecFile, key: &str, items: &[String]) -> Result<Vec<PathBuf>> {
     if items.is_empty() {
         return Err(spec.bad_value(key, "name at least one G-code file or folder"));
     }
     let paths: Vec<PathBuf> = items.iter().map(|s| spec.dir().join(s)).collect();
-    gcode_files(&paths).map_err(|e| spec.bad_value(key, e.to_string()))
+    fdmlab_datasets::turns::gcode_files(&paths).map_err(|e| spec.bad_value(key, e.to_string()))
 }
 
 /// The stages of a `turn-prediction` spec.
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: TurnSpec = spec.parse()?;
     let task = Task { horizons: s.task.horizons.clone(), corner_window_mm: s.task.corner_window_mm };
-    check_task(&task).map_err(|e| spec.bad_value("task.horizons", e))?;
-    check_blocks(&s.downstream.blocks).map_err(|e| spec.bad_value("downstream.blocks", e))?;
+    task.check().map_err(|e| spec.bad_value(&format!("task.{}", param_name(&e)), e.to_string()))?;
+    downstream::check_blocks(&s.downstream.blocks).map_err(|e| spec.bad_value("downstream.blocks", e.to_string()))?;
     let m = &s.model;
     let settings = TrainParams {
         hidden: m.hidden.clone(),
@@ -273,17 +205,17 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         Stage::typed("train", 2, loso_train.clone(), move |input, p: &TrainStage| {
             let mut data = vec![];
             for (path, name) in tf.iter().zip(&p.files) {
-                data.push(moves_of(&input.file(path)?, name)?);
+                data.push(moves_of_bytes(&input.file(path)?, name)?);
             }
             let mut tune = vec![];
             for (path, name) in tuf.iter().zip(&p.tune) {
-                tune.push(moves_of(&input.file(path)?, name)?);
+                tune.push(moves_of_bytes(&input.file(path)?, name)?);
             }
             let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
             let model = evaluate::train_and_tune(&data, &tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
             let bpk = model.network()?.to_burnpack(&[])?;
             Ok(StageOutput::default()
-                .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
+                .add("turn-model.json", "application/json", stored::model_to_json(&model)?)
                 .add("turn-model.bpk", "application/octet-stream", bpk)
                 .metric("rows", model.rows as f64)
                 .metric("junctions", model.junctions as f64)
@@ -301,16 +233,16 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             3,
             EvalStage { train: train_labels, files: test_labels.clone(), blocks: s.downstream.blocks.clone(), seed: s.experiment.seed },
             move |input, p: &EvalStage| {
-                let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
+                let model = stored::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
                 let mut train = vec![];
                 for (path, name) in trf.iter().zip(&p.train) {
-                    train.push(junctions_of(&input.file(path)?, name)?);
+                    train.push(fdmlab_models::turns::junctions(&moves_of_bytes(&input.file(path)?, name)?));
                 }
                 let (mut data, mut slicers) = (vec![], vec![]);
                 for (path, name) in tf.iter().zip(&p.files) {
                     let bytes = input.file(path)?;
                     slicers.push(fdmlab_datasets::turns::slicer_of_bytes(&bytes));
-                    data.push((name.clone(), moves_of(&bytes, name)?));
+                    data.push((name.clone(), moves_of_bytes(&bytes, name)?));
                 }
                 let (mut summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks, &model.task.horizons, p.seed)?;
                 summary.slicers = evaluate::by_group(&files, &slicers, p.seed);
@@ -348,12 +280,12 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     stages.push(
         Stage::typed("export", 1, ExportStage { formats }, |input, p: &ExportStage| {
             let bytes = input.output("train", "turn-model.json")?;
-            let model = turnnet::model_from_json(&bytes, "turn-model.json")?;
+            let model = stored::model_from_json(&bytes, "turn-model.json")?;
             let label = format!("model {}", &crate::store::Hash::of(&bytes).0[..12]);
             let mut out = StageOutput::default();
             for f in &p.formats {
                 let fmt = TurnExportFormat::parse(f)?;
-                let text = turnnet::export::export(&model, fmt, &label)?;
+                let text = stored::export::export(&model, fmt, &label)?;
                 let name = match fmt {
                     TurnExportFormat::CHeader => "fdmlab_turns.h",
                     TurnExportFormat::Json => "turns-export.json",
@@ -370,7 +302,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let mut out = vec![];
             for (path, name) in paths.iter().zip(names) {
                 let bytes = input.file(path)?;
-                out.push((name.clone(), fdmlab_datasets::turns::slicer_of_bytes(&bytes).to_string(), moves_of(&bytes, name)?));
+                out.push((name.clone(), fdmlab_datasets::turns::slicer_of_bytes(&bytes).to_string(), moves_of_bytes(&bytes, name)?));
             }
             Ok(out)
         };
@@ -408,7 +340,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let title = format!("fdmlab {}", s.experiment.name);
     stages.push(
         Stage::typed("report", 2, (title, loso), |input, (title, loso): &(String, bool)| {
-            let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
+            let model = stored::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
             let summary: evaluate::Summary = input.json("eval", "eval.json")?;
             let files: Vec<FileEval> = input.json("eval", "files.json")?;
             let held: Vec<evaluate::HeldOutGroup> = if *loso { input.json("loso", "loso.json")? } else { vec![] };
