@@ -7,6 +7,7 @@ pub mod compare;
 pub mod discrepancy;
 mod error;
 pub mod hbot;
+pub mod pa_adaptive;
 mod plot;
 pub mod render;
 mod table;

@@ -40,6 +40,8 @@ pub enum BenchCommand {
         #[arg(long)]
         torch: Option<PathBuf>,
     },
+    /// Adaptive pressure advance: fitting the K(flow, accel) model vs `ka train`'s network on the same cells.
+    KaFit(super::ka_adaptive::BenchArgs),
 }
 
 /// Dispatch a bench.
@@ -54,6 +56,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
         BenchCommand::Turns(a) => super::turns_bench::bench(a, ctx),
         BenchCommand::TurnsTrain(a) => super::turns_net::bench(a, ctx),
         BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
+        BenchCommand::KaFit(a) => super::ka_adaptive::bench(a, ctx),
     }
 }
 
