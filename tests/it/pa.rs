@@ -323,3 +323,81 @@ fn adaptive_model_by_command_from_the_twin_and_from_scored_prints() {
     // And K falls with flow at both accelerations, as the twin's does.
     assert!(rows[1][0] < rows[0][0] && rows[3][0] < rows[2][0], "{rows:?}");
 }
+
+/// Issue #29 item 7: the bundled `pa-adaptive` spec on the twin, checked against the
+/// twin's known parameters (its noiseless best K per pattern, its K₂ = −r·K) and against
+/// OrcaSlicer's own interpolation of the exported rows.
+#[test]
+fn pa_adaptive_spec_recovers_the_twin_and_orca_reads_its_table() {
+    use fdmlab_models::adaptive::twin::{TwinCell, TwinConfig};
+    let sb = Sandbox::new();
+    let spec = copy_spec(&sb, "pa-adaptive.toml");
+    let out = sb.run(&["run", spec.to_str().expect("utf8 path")]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let run = sb.json(&["runs", "show", "latest"]);
+    let get = |stage: &str, name: &str| {
+        let s = run["stages"].as_array().expect("stages").iter().find(|s| s["name"] == stage).expect(stage);
+        let hash = s["outputs"].as_array().expect("outputs").iter().find(|o| o["name"] == name).and_then(|o| o["hash"].as_str()).expect(name);
+        sb.run(&["cat", hash]).stdout
+    };
+    let cells: Vec<TwinCell> = serde_json::from_slice(&get("twin", "cells.json")).expect("cells");
+    assert_eq!(cells.len(), 12, "Orca's guide grid: 4 speeds × 3 accelerations");
+    let art = fdmlab_datasets::pa::kflow::KflowArtifact::from_json(&get("fit", "model.json"), "model.json").expect("model");
+    let q = |f: f64, a: f64| fdmlab_models::adaptive::model::Query {
+        flow_mm3_s: f,
+        accel_mm_s2: a,
+        layer_mm: Some(0.2),
+        hotend_c: Some(215.0),
+        material: Some("PLA".into()),
+    };
+    // Model vs the twin's noiseless best K at every printed pattern. The measured cells lean
+    // high of it by up to ~1.4 ms (asymmetric score curve, docs/pressure-advance.md) and the
+    // model follows its cells: bound 2 ms, 4 % of K.
+    for c in &cells {
+        let k = art.model.predict(&q(c.flow_mm3_s, c.accel_mm_s2)).expect("predict").k;
+        assert!((k - c.k_true).abs() < 0.002, "{} mm/s, {} mm/s²: model {k} vs twin {}", c.speed_mm_s, c.accel_mm_s2, c.k_true);
+    }
+    // The twin's K falls by 10–20 % from 4.8 to 19.2 mm³/s (nonlinear pressure); so does the model's.
+    for a in [1000.0, 2000.0, 4000.0] {
+        let (lo, hi) = (art.model.predict(&q(4.8, a)).expect("lo").k, art.model.predict(&q(19.2, a)).expect("hi").k);
+        assert!(hi < 0.9 * lo, "accel {a}: {lo} → {hi}");
+    }
+    // Residuals through the discrepancy workflow: the missing effect is named, K₂ near the twin's.
+    let lines: serde_json::Value = serde_json::from_slice(&get("lines", "lines.json")).expect("lines");
+    assert!(lines["named"].as_array().expect("named").iter().any(|n| n == "nonlinear_pressure"), "{lines}");
+    let twin = TwinConfig::default();
+    let k2_true = twin.plant(&cells[0].conditions).k2_s2_per_mm3;
+    assert!((k2_true + 0.016 * twin.plant(&cells[0].conditions).k_s).abs() < 1e-12, "the spec's K₂ = −0.016·K");
+    let k2 = lines["k2_s2_per_mm3"].as_f64().expect("k2");
+    // 10 %: two lines of ~1,500 sensor samples at 0.02 mm³/s noise pin K₂ to a few %.
+    assert!((k2 - k2_true).abs() < 0.1 * k2_true.abs(), "K₂ {k2} vs twin {k2_true}");
+    // Prints vs error on held-out seeds: chosen patterns beat the grid's order at 3–6 prints;
+    // 5 chosen do not quite reach the full grid (1.33×; < 2× asserted, the issue's target is 1×).
+    let design: serde_json::Value = serde_json::from_slice(&get("design", "design.json")).expect("design");
+    let rows = design["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 12);
+    for r in &rows[2..6] {
+        assert!(r["chosen_rms_s"].as_f64() < r["grid_rms_s"].as_f64(), "{r}");
+    }
+    assert!(design["ratio_at_5"].as_f64().expect("ratio") < 2.0, "{design}");
+    // Orca: its PCHIP (flow, then acceleration, 3 decimals) of the exported rows vs the model
+    // off the grid. Bound 1.5 ms: rows rounded to 0.05 ms, Orca's output to 0.5 ms, and the
+    // interpolation error between flow nodes 4.8 mm³/s apart where K bends by < 1 ms.
+    let rows = String::from_utf8(get("export", "ka-orca.txt")).expect("utf8");
+    for f in [6.1, 11.7, 17.3] {
+        for a in [1300.0, 2900.0, 3700.0] {
+            let orca = crate::orca_pchip::orca_interpolate(&rows, f, a);
+            let k = art.model.predict(&q(f, a)).expect("predict").k;
+            assert!((orca - k).abs() < 0.0015, "flow {f}, accel {a}: Orca {orca} vs model {k}");
+        }
+    }
+    let kalico = String::from_utf8(get("export", "ka-kalico.cfg")).expect("utf8");
+    assert!(kalico.contains("pressure_advance_model: tanh") && kalico.contains("SET_PRESSURE_ADVANCE MODEL=tanh"), "{kalico}");
+    assert!(String::from_utf8(get("export", "ka-klipper-adaptive.cfg")).expect("utf8").contains("[gcode_macro FDMLAB_ADAPTIVE_PA]"));
+    assert!(sb.files().iter().any(|p| p.ends_with("reports/pa-adaptive/report.md")));
+    // A held-out seed equal to the experiment's is refused, naming the key.
+    let bad = sb.write("bad.toml", &std::fs::read_to_string(&spec).expect("spec").replace("seeds = [31, 32]", "seeds = [7, 32]"));
+    let out = sb.run(&["validate", bad.to_str().expect("utf8")]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("design.seeds"), "{}", stderr(&out));
+}
