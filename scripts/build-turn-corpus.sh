@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Rebuild the turn corpus shipped in datasets/turns-corpus (issue #12 §4).
+# Rebuild the turn corpus shipped in datasets/turns-corpus (issue #12 §4), or
+# with --full the larger one (issue #25: more families and drawn settings),
+# built outside the repository (default target/turn-corpus-full; ~2 min here).
 #
-#   scripts/build-turn-corpus.sh [--out DIR] [--seed N] [--arcs N] [--check]
+#   scripts/build-turn-corpus.sh [--full] [--out DIR] [--seed N] [--arcs N] [--check]
 #
 # Installs the Debian slicers when missing (PrusaSlicer 2.5, Slic3r 1.3,
 # CuraEngine 4.13 and the `cura` package for its printer definitions, OpenSCAD),
@@ -23,4 +25,4 @@ if [ ${#need[@]} -gt 0 ]; then
     DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${need[@]}"
 fi
 
-exec python3 scripts/turn-corpus/build.py "$@"
+exec nice -n 10 python3 scripts/turn-corpus/build.py "$@"

@@ -27,6 +27,48 @@ pub fn read_moves(path: &Path) -> Result<Vec<Move>, DatasetError> {
     stream::moves(open(path)?, &path.display().to_string()).collect()
 }
 
+/// The slicer that wrote a G-code file, from the header comments of its first
+/// 200 lines: `prusa-slicer`, `superslicer`, `orcaslicer`, `bambu-studio`,
+/// `slic3r`, `cura-engine`, `simplify3d`, `synthetic` (the corpus builder's arc
+/// programs), else `unknown`. Groups the per-slicer figures of `turns eval`
+/// and of the `turn-prediction` report.
+pub fn slicer_of(path: &Path) -> Result<&'static str, DatasetError> {
+    slicer_in(open(path)?).map_err(|source| DatasetError::Io { path: path.display().to_string(), source })
+}
+
+/// [`slicer_of`] for G-code bytes (gzipped when they start with the gzip magic).
+pub fn slicer_of_bytes(bytes: &[u8]) -> &'static str {
+    let found = if bytes.starts_with(&[0x1f, 0x8b]) { slicer_in(BufReader::new(flate2::read::MultiGzDecoder::new(bytes))) } else { slicer_in(bytes) };
+    found.unwrap_or("unknown")
+}
+
+fn slicer_in(mut r: impl BufRead) -> std::io::Result<&'static str> {
+    const NAMES: [(&str, &str); 8] = [
+        ("prusaslicer", "prusa-slicer"),
+        ("superslicer", "superslicer"),
+        ("orcaslicer", "orcaslicer"),
+        ("bambustudio", "bambu-studio"),
+        ("slic3r", "slic3r"),
+        ("cura_steamengine", "cura-engine"),
+        ("simplify3d", "simplify3d"),
+        ("fdmlab build-turn-corpus", "synthetic"),
+    ];
+    let mut line = Vec::new();
+    for _ in 0..200 {
+        line.clear();
+        if r.read_until(b'\n', &mut line)? == 0 {
+            break;
+        }
+        let text = String::from_utf8_lossy(&line).to_ascii_lowercase();
+        if let Some(body) = text.trim_start().strip_prefix(';') {
+            if let Some((_, name)) = NAMES.iter().find(|(k, _)| body.contains(k)) {
+                return Ok(name);
+            }
+        }
+    }
+    Ok("unknown")
+}
+
 /// The corpus shipped in the repository (`datasets/turns-corpus`).
 pub fn shipped_corpus() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("turns-corpus")
@@ -79,6 +121,25 @@ impl Manifest {
         let path = dir.join("manifest.json");
         let text = std::fs::read_to_string(&path).map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
         serde_json::from_str(&text).map_err(|e| DatasetError::parse(&path.display().to_string(), e.line(), "manifest", e.to_string()))
+    }
+
+    /// Check that no model family and no model is in two splits (issue #25:
+    /// train, tune and test are split by family); the error names the first
+    /// family or model found in two, and two of its files.
+    pub fn check_splits(&self, dir: &Path) -> Result<(), DatasetError> {
+        let path = dir.join("manifest.json").display().to_string();
+        let mut seen: std::collections::HashMap<String, &CorpusFile> = Default::default();
+        for f in &self.files {
+            let model = f.model.get("name").and_then(|n| n.as_str()).unwrap_or(&f.file);
+            for key in [format!("family {}", f.family), format!("model {model}")] {
+                let first = *seen.entry(key.clone()).or_insert(f);
+                if first.split != f.split {
+                    let msg = format!("{key} is in splits {} ({}) and {} ({})", first.split, first.file, f.split, f.file);
+                    return Err(DatasetError::parse(&path, 0, "split", msg));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Paths of the files of one split.

@@ -8,40 +8,10 @@
 
 use crate::error::{Error, Result};
 use fdmlab_datasets::thermal::{self as tlog, marlin::MarlinOptions, LogFormat, ReadOptions, Uniformity};
-use fdmlab_models::discrepancy::{self, Outcome, SelectOptions};
+use fdmlab_models::discrepancy::{self, Outcome, ValidSelectOptions};
 use serde::{Deserialize, Serialize};
 
-/// Domains of the workflow.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DomainName {
-    /// Hotend temperature.
-    Thermal,
-    /// H-Bot axis position.
-    Motion,
-    /// Extruder flow/pressure.
-    Extrusion,
-}
-
-impl DomainName {
-    /// Parse `thermal`, `motion` or `extrusion`.
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "thermal" => Ok(DomainName::Thermal),
-            "motion" => Ok(DomainName::Motion),
-            "extrusion" => Ok(DomainName::Extrusion),
-            other => Err(Error::bad_input(format!("unknown domain `{other}`; expected thermal, motion or extrusion"))),
-        }
-    }
-    /// Lower-case name.
-    pub fn name(&self) -> &'static str {
-        match self {
-            DomainName::Thermal => "thermal",
-            DomainName::Motion => "motion",
-            DomainName::Extrusion => "extrusion",
-        }
-    }
-}
+pub use fdmlab_models::discrepancy::DomainName;
 
 /// How to read a log (thermal: as `thermal identify` reads it). All optional.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -130,8 +100,7 @@ pub fn thermal_model(bytes: &[u8], name: &str) -> Result<discrepancy::thermal::T
 /// Run `domain` on `data` (each file's bytes and name, pooled as segments of
 /// one data set), from `model` (bytes and name) if given, else from the
 /// domain's base model.
-pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &str)>, read: &ReadSettings, opts: &SelectOptions) -> Result<DomainRun> {
-    opts.check().map_err(|e| Error::bad_input(e.to_string()))?;
+pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &str)>, read: &ReadSettings, opts: &ValidSelectOptions) -> Result<DomainRun> {
     let label = data.iter().map(|(_, n)| *n).collect::<Vec<_>>().join(", ");
     if data.is_empty() {
         return Err(Error::bad_input("no data file given"));

@@ -114,6 +114,27 @@ impl SpecFile {
         self.error_at(line, column, key, message)
     }
 
+    /// `polars_ensure!` for spec values: a located [`SpecFile::bad_value`]
+    /// for `key` unless `ok` (`spec.ensure(x > 0.0, "plant.tau_s", "must be > 0")?`).
+    pub fn ensure(&self, ok: bool, key: &str, why: &str) -> Result<()> {
+        if ok {
+            Ok(())
+        } else {
+            Err(self.bad_value(key, why))
+        }
+    }
+
+    /// A model layer's refusal of a checked parameter type located in the
+    /// spec: `InvalidParameter { name }` at `section.name` (the spec key
+    /// equals the field name), anything else at `section`.
+    pub fn bad_param(&self, section: &str, e: fdmlab_models::ModelError) -> Error {
+        let key = match &e {
+            fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("{section}.{name}"),
+            _ => section.to_string(),
+        };
+        self.bad_value(&key, e.to_string())
+    }
+
     /// Resolve an input file named at `key`, relative to the spec; it must exist.
     pub fn input_file(&self, key: &str, rel: &str) -> Result<PathBuf> {
         let p = self.dir().join(rel);

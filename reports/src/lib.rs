@@ -7,11 +7,13 @@ pub mod compare;
 pub mod discrepancy;
 mod error;
 pub mod hbot;
+pub mod pa;
 pub mod pa_adaptive;
 mod plot;
 pub mod render;
 mod table;
 pub mod thermal;
+pub mod thermal_grid;
 pub mod turns;
 
 pub use error::ReportError;

@@ -6,7 +6,7 @@
 use crate::{num, LinePlot, Report, Table};
 use fdmlab_models::turns::contenders::TRIVIAL;
 use fdmlab_models::turns::downstream::Downstream;
-use fdmlab_models::turns::evaluate::{FileEval, Gain, HorizonScores, MethodScore, Summary, NETWORK};
+use fdmlab_models::turns::evaluate::{FileEval, Gain, HeldOutGroup, HorizonScores, MethodScore, Summary, NETWORK};
 use fdmlab_models::turns::net::TurnModel;
 
 /// Everything the report shows.
@@ -17,6 +17,8 @@ pub struct TurnsView<'a> {
     pub files: &'a [FileEval],
     /// Per horizon, pooled over the held-out files.
     pub downstream: &'a [Downstream],
+    /// Leave-one-slicer-out runs (empty when the spec asks for none).
+    pub held_out_slicers: &'a [HeldOutGroup],
 }
 
 /// A baseline a claim may name: tuned and not trivial (`no-turn`, `planner` stay in the tables only).
@@ -104,6 +106,8 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         }
     }
     r.table(per_file);
+    slicer_table(&mut r, v.summary);
+    loso_table(&mut r, v.held_out_slicers);
     r.heading("Predicted vs actual turns");
     if let Some(f) = v.files.first() {
         for tr in &f.traces {
@@ -224,6 +228,51 @@ pub fn report(v: &TurnsView<'_>) -> Report {
 }
 
 /// A call threshold as shown: "never" above every probability.
+/// One row: the network against the best tuned baseline (by MAE) at one horizon, with the relative change.
+fn versus_best(group: &str, files: usize, h: &HorizonScores) -> Option<[String; 9]> {
+    let (n, b) = (h.methods.iter().find(|m| m.method == NETWORK)?, best_baseline(h, |m| m.mae_deg, true)?);
+    Some([
+        group.to_string(),
+        files.to_string(),
+        h.horizon.to_string(),
+        num(n.mae_deg, 4),
+        b.method.clone(),
+        num(b.mae_deg, 4),
+        format!("{:+.1} %", 100.0 * (n.mae_deg / b.mae_deg - 1.0)),
+        num(n.f1, 3),
+        num(b.f1, 3),
+    ])
+}
+
+const VERSUS: [&str; 7] = ["H", "network MAE", "baseline", "baseline MAE", "MAE change", "network F1", "baseline F1"];
+
+/// Per slicer group, pooled over the group's held-out files.
+fn slicer_table(r: &mut Report, s: &Summary) {
+    if s.slicers.is_empty() {
+        return;
+    }
+    let head: Vec<&str> = ["slicer", "files"].into_iter().chain(VERSUS).collect();
+    let mut t = Table::new("Per slicer group (held-out files pooled): network vs best tuned baseline", head);
+    for g in &s.slicers {
+        g.horizons.iter().filter_map(|h| versus_best(&g.group, g.files, h)).for_each(|row| t.push(row));
+    }
+    r.table(t);
+}
+
+/// Leave one slicer out: each slicer's held-out files scored by a model
+/// trained and tuned without that slicer's files.
+fn loso_table(r: &mut Report, held: &[HeldOutGroup]) {
+    if held.is_empty() {
+        return;
+    }
+    let head: Vec<&str> = ["slicer held out", "train files"].into_iter().chain(VERSUS).collect();
+    let mut t = Table::new("Leave one slicer out: trained and tuned without the slicer, scored on its held-out files", head);
+    for g in held {
+        g.summary.horizons.iter().filter_map(|h| versus_best(&g.group, g.train_files, h)).for_each(|row| t.push(row));
+    }
+    r.table(t);
+}
+
 fn shown(t: f64) -> String {
     if t > 1.0 {
         "never".to_string()

@@ -8,6 +8,7 @@ height = 6;     // mm
 wall = 1.2;     // wall / fin thickness, mm
 angle = 45;     // overhang angle, degrees
 label = "FDM";
+depth = 0.6;    // engraving depth, mm
 
 module polygon_prism() {
     difference() {
@@ -63,9 +64,31 @@ module thin_features() {
     }
 }
 
+module lattice() {
+    // A flat lattice panel: a frame around n × n cells of one of three shapes.
+    cell = size / n;
+    linear_extrude(height) difference() {
+        square([size, size], center = true);
+        for (i = [0 : n - 1], k = [0 : n - 1])
+            translate([-size / 2 + cell * (i + 0.5), -size / 2 + cell * (k + 0.5)])
+                rotate(angle) circle(d = cell - wall, $fn = (i + k) % 3 == 0 ? 6 : (angle > 40 ? 4 : 32));
+    }
+}
+
+module engraving() {
+    // Small text cut `depth` deep into a plate.
+    difference() {
+        translate([-size / 2, -size / 4, 0]) cube([size, size / 2, height]);
+        translate([0, 0, height - depth]) linear_extrude(depth + 1)
+            text(label, size = size / max(1, len(label)) * 0.9, halign = "center", valign = "center");
+    }
+}
+
 if (kind == "polygon") polygon_prism();
 else if (kind == "text") text_block();
 else if (kind == "bosses") bosses();
 else if (kind == "overhang") overhang();
 else if (kind == "curved_wall") curved_wall();
 else if (kind == "thin_features") thin_features();
+else if (kind == "lattice") lattice();
+else if (kind == "engraving") engraving();

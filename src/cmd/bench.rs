@@ -32,6 +32,8 @@ pub enum BenchCommand {
     Turns(super::turns_bench::BenchArgs),
     /// Turn network: training on a million junctions, weight size, C vs burn inference.
     TurnsTrain(super::turns_net::BenchArgs),
+    /// Turn evaluation: every method and buffer (16, 4, 2) on one file of 100k junctions, wall and CPU seconds.
+    TurnsEval(super::turns_bench::EvalBenchArgs),
     /// Pressure advance: K_A training on the twin's grid, pattern generation, C inference.
     Pa {
         #[arg(long, default_value_t = 500)]
@@ -55,6 +57,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
         BenchCommand::Discrepancy(a) => super::discrepancy::bench(a, ctx),
         BenchCommand::Turns(a) => super::turns_bench::bench(a, ctx),
         BenchCommand::TurnsTrain(a) => super::turns_net::bench(a, ctx),
+        BenchCommand::TurnsEval(a) => super::turns_bench::eval_bench(a, ctx),
         BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
         BenchCommand::KaFit(a) => super::ka_adaptive::bench(a, ctx),
     }

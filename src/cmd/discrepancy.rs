@@ -2,9 +2,10 @@
 //! the gap shrink; `fdmlab discrepancy hidden` writes hidden-effect data;
 //! `fdmlab bench discrepancy` times the whole workflow.
 
+use super::values::{value_name, LogFormatArg};
 use super::Ctx;
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
-use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions};
 use fdmlab_models::thermal::twin::Twin;
 use fdmlab_pipeline::discrepancy::{self as disc, DomainName, ReadSettings};
 use fdmlab_pipeline::report;
@@ -15,27 +16,6 @@ use serde_json::json;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// The domain of a run.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum Domain {
-    /// Hotend temperature (heat balance).
-    Thermal,
-    /// H-Bot axis position.
-    Motion,
-    /// Extruder flow.
-    Extrusion,
-}
-
-impl From<Domain> for DomainName {
-    fn from(d: Domain) -> Self {
-        match d {
-            Domain::Thermal => DomainName::Thermal,
-            Domain::Motion => DomainName::Motion,
-            Domain::Extrusion => DomainName::Extrusion,
-        }
-    }
-}
 
 /// `fdmlab discrepancy`
 #[derive(clap::Args)]
@@ -59,7 +39,7 @@ enum Sub {
 struct RunArgs {
     /// Domain.
     #[arg(long, value_enum)]
-    domain: Option<Domain>,
+    domain: Option<DomainName>,
     /// Measured data (thermal: log CSV, Marlin or Klipper log); repeat to pool several logs.
     #[arg(long, num_args = 1..)]
     data: Vec<PathBuf>,
@@ -78,9 +58,9 @@ struct RunArgs {
     /// Correlation above which two effects are reported ambiguous.
     #[arg(long, default_value_t = SelectOptions::default().collinearity)]
     collinearity: f64,
-    /// Log format: csv, marlin or klipper (default: by extension/content).
-    #[arg(long)]
-    format: Option<String>,
+    /// Log format (default: by extension/content).
+    #[arg(long, value_enum)]
+    format: Option<LogFormatArg>,
     /// Auto-report interval of bare Marlin logs, s.
     #[arg(long)]
     interval: Option<f64>,
@@ -100,7 +80,7 @@ struct RunArgs {
 struct HiddenArgs {
     /// Domain.
     #[arg(long, value_enum)]
-    domain: Domain,
+    domain: DomainName,
     /// Output folder (cases/case-NNN.csv, answers.json).
     #[arg(long)]
     out: PathBuf,
@@ -116,9 +96,10 @@ struct HiddenArgs {
     /// Effect-free logs per noise level.
     #[arg(long = "null-cases", default_value_t = HiddenOptions::default().null_cases)]
     null_cases: usize,
-    /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal only: a
-    /// two-node plant of another form, integrated adaptively, with effects outside
-    /// the library; `--seeds` replicates, `--null-cases` effect-free cases per noise level).
+    /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal: a
+    /// two-node plant; extrusion: a compressible power-law melt; both of another form,
+    /// integrated adaptively, with effects outside the library; `--seeds` replicates,
+    /// `--null-cases` effect-free cases per noise level).
     #[arg(long, value_enum, default_value_t = SetKind::Hidden)]
     set: SetKind,
 }
@@ -128,8 +109,16 @@ struct HiddenArgs {
 enum SetKind {
     /// The domain's own hidden-effect generator.
     Hidden,
-    /// The model-form mismatch generator (thermal).
+    /// The model-form mismatch generator (thermal, extrusion).
     Mismatch,
+}
+
+/// A refused selection option named by its flag (`--max-effects: invalid parameter …`).
+fn flag_error(e: fdmlab_models::ModelError) -> String {
+    match &e {
+        fdmlab_models::ModelError::InvalidParameter { name, .. } => format!("--{}: {e}", name.replace('_', "-")),
+        _ => e.to_string(),
+    }
 }
 
 fn bad(msg: impl Into<String>) -> anyhow::Error {
@@ -159,13 +148,19 @@ fn load_model(arg: &str, ctx: &Ctx) -> anyhow::Result<(Vec<u8>, String, Option<H
 }
 
 fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let domain: DomainName = a.domain.ok_or_else(|| bad("--domain is required (thermal, motion or extrusion)"))?.into();
+    let domain = a.domain.ok_or_else(|| bad(format!("--domain is required ({})", DomainName::ALL.map(DomainName::name).join(", "))))?;
     if a.data.is_empty() {
         return Err(bad("--data FILE is required"));
     }
-    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity };
-    opts.check().map_err(|e| bad(e.to_string()))?;
-    let read = ReadSettings { format: a.format, interval_s: a.interval, pwm_max: a.pwm_max, resample_s: a.resample, ambient_c: a.ambient_c, heater: None };
+    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity }.check().map_err(|e| bad(flag_error(e)))?;
+    let read = ReadSettings {
+        format: a.format.map(|f| value_name(&f)),
+        interval_s: a.interval,
+        pwm_max: a.pwm_max,
+        resample_s: a.resample,
+        ambient_c: a.ambient_c,
+        heater: None,
+    };
     let bytes: Vec<Vec<u8>> = a.data.iter().map(|p| super::read_input(p)).collect::<anyhow::Result<_>>()?;
     let names: Vec<String> = a.data.iter().map(|p| p.display().to_string()).collect();
     let files: Vec<(&[u8], &str)> = bytes.iter().zip(&names).map(|(b, n)| (b.as_slice(), n.as_str())).collect();
@@ -236,11 +231,12 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let domain: DomainName = h.domain.into();
+    let domain = h.domain;
     if h.set == SetKind::Mismatch {
         return match domain {
             DomainName::Thermal => mismatch_thermal(&h, ctx),
-            _ => Err(bad(format!("--set mismatch exists for the thermal domain only, not {}", domain.name()))),
+            DomainName::Extrusion => mismatch_extrusion(&h, ctx),
+            DomainName::Motion => Err(bad("--set mismatch exists for the thermal and extrusion domains, not motion (yet)")),
         };
     }
     match domain {
@@ -265,14 +261,19 @@ fn write_thermal_set<'a>(
     cases: impl Iterator<Item = (&'a fdmlab_models::thermal::data::Experiment, serde_json::Value)>,
     ctx: &Ctx,
 ) -> anyhow::Result<()> {
-    let files =
-        fdmlab_datasets::discrepancy::hidden_set_files("thermal", generator, seed, config, cases.map(|(e, a)| (fdmlab_datasets::thermal::csv::write(e), a)))?;
-    write_hidden(out, "thermal", generator, seed, files, ctx)
+    let files = fdmlab_datasets::discrepancy::hidden_set_files(
+        DomainName::Thermal,
+        generator,
+        seed,
+        config,
+        cases.map(|(e, a)| (fdmlab_datasets::thermal::csv::write(e), a)),
+    )?;
+    write_hidden(out, DomainName::Thermal, generator, seed, files, ctx)
 }
 
 /// Write a hidden-effect set (`cases/case-NNN.csv` + `answers.json`, see
 /// `fdmlab_datasets::discrepancy::hidden_set_files`) and report it.
-fn write_hidden(out: &Path, domain: &str, generator: &str, seed: u64, files: Vec<(String, Vec<u8>)>, ctx: &Ctx) -> anyhow::Result<()> {
+fn write_hidden(out: &Path, domain: DomainName, generator: &str, seed: u64, files: Vec<(String, Vec<u8>)>, ctx: &Ctx) -> anyhow::Result<()> {
     let cases = files.len().saturating_sub(1);
     let paths: Vec<(PathBuf, Vec<u8>)> = files.into_iter().map(|(name, bytes)| (out.join(name), bytes)).collect();
     let refs: Vec<(&Path, &[u8])> = paths.iter().map(|(p, b)| (p.as_path(), b.as_slice())).collect();
@@ -292,6 +293,23 @@ fn mismatch_thermal(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     write_thermal_set(&h.out, tm::GENERATOR, opts.seed, &serde_json::to_value(&opts)?, answers.into_iter(), ctx)
 }
 
+/// `fdmlab discrepancy hidden --domain extrusion --set mismatch`: the model-form
+/// mismatch set of `models::discrepancy::extrusion::mismatch` (`--samples` is unused:
+/// the logs follow the hidden set's protocol).
+fn mismatch_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::extrusion::mismatch as em;
+    let opts = em::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
+    let cases = em::generate(&opts).map_err(|e| bad(e.to_string()))?;
+    let files = fdmlab_datasets::discrepancy::hidden_set_files(
+        DomainName::Extrusion,
+        em::GENERATOR,
+        opts.seed,
+        &opts,
+        cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer)),
+    )?;
+    write_hidden(&h.out, DomainName::Extrusion, em::GENERATOR, h.seed, files, ctx)
+}
+
 /// `fdmlab discrepancy hidden --domain motion`: the full set of
 /// `models::discrepancy::motion::hidden::HiddenConfig::full` (`--seeds` replicates per cell,
 /// `--null-cases` effect-free cases per noise level).
@@ -300,7 +318,7 @@ fn hidden_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let config = mh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..mh::HiddenConfig::full(h.seed) };
     let cases = mh::generate(&config).map_err(|e| bad(e.to_string()))?;
     let files = fdmlab_datasets::discrepancy::motion::hidden_files(&config, &cases)?;
-    write_hidden(&h.out, "motion", mh::GENERATOR, h.seed, files, ctx)
+    write_hidden(&h.out, DomainName::Motion, mh::GENERATOR, h.seed, files, ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain extrusion`: as [`hidden_motion`] for
@@ -310,7 +328,7 @@ fn hidden_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let config = eh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..eh::HiddenConfig::full(h.seed) };
     let cases = eh::generate(&config).map_err(|e| bad(e.to_string()))?;
     let files = fdmlab_datasets::discrepancy::extrusion::hidden_files(&config, &cases)?;
-    write_hidden(&h.out, "extrusion", eh::GENERATOR, h.seed, files, ctx)
+    write_hidden(&h.out, DomainName::Extrusion, eh::GENERATOR, h.seed, files, ctx)
 }
 
 /// `fdmlab bench discrepancy`
@@ -334,7 +352,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let mut last = None;
     for _ in 0..a.repeat.max(1) {
         let t = Instant::now();
-        let o = fdmlab_models::discrepancy::thermal::discrepancy(vec![log.clone()], None, &SelectOptions::default())?;
+        let o = fdmlab_models::discrepancy::thermal::discrepancy(vec![log.clone()], None, &ValidSelectOptions::default())?;
         best = best.min(t.elapsed().as_secs_f64());
         last = Some(o.report);
     }

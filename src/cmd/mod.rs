@@ -15,6 +15,7 @@ pub mod sweep;
 pub mod thermal;
 pub mod turns;
 pub mod turns_bench;
+pub mod turns_loso;
 pub mod turns_net;
 pub mod values;
 

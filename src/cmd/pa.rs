@@ -664,13 +664,13 @@ fn c_inference_us(model: &MlpModel, tb: &table::FeatureTable) -> anyhow::Result<
         support: vec![],
     };
     let header = export::export(&km, ExportFormat::CHeader, &ExportOptions::default())?;
-    let n = tb.design.cols();
-    let row: Vec<String> = tb.design.row(0).iter().map(|v| format!("{v:e}")).collect();
-    let main = format!(
-        "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"ka.h\"\nint main(void) {{\n  double x[{n}] = {{{}}};\n  volatile double sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-9; sink += fdmlab_ka_predict(x); }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e300;\n}}\n",
-        row.join(",")
-    );
-    super::time_c_program("ka.h", header, &main, 3)
+    super::time_c_program("ka.h", header, &timing_program(tb.design.row(0)), 3)
+}
+
+/// The timing harness (`ka_predict_timing.c`) for an input row.
+fn timing_program(row: &[f64]) -> String {
+    let values: Vec<String> = row.iter().map(|v| format!("{v:e}")).collect();
+    format!("#define FDMLAB_BENCH_INPUTS {}\n#define FDMLAB_BENCH_ROW {}\n{}", row.len(), values.join(","), include_str!("ka_predict_timing.c"))
 }
 
 /// Run the PyTorch script on the same grid and read its training time.
@@ -684,4 +684,17 @@ fn torch_time(script: &Path, csv: &str, epochs: usize) -> anyhow::Result<f64> {
     let _ = std::fs::remove_dir_all(&dir);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).with_context(|| String::from_utf8_lossy(&out.stderr).to_string())?;
     v["seconds"].as_f64().context("no `seconds` in the PyTorch output")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_timing_harness_compiles_and_runs_on_a_header() {
+        // A stand-in header with the generated one's signature; cc is required (as by `export turns`' tests).
+        let header = "static double fdmlab_ka_predict(const double *x) { return x[0] + x[2]; }\n";
+        let program = super::timing_program(&[0.5, 1.0, 2.0]);
+        assert!(program.starts_with("#define FDMLAB_BENCH_INPUTS 3\n#define FDMLAB_BENCH_ROW 5e-1,1e0,2e0\n"), "{program}");
+        let us = super::super::time_c_program("ka.h", header, &program, 1).expect("scratch dir").expect("cc compiles and runs the harness");
+        assert!(us.is_finite() && us >= 0.0, "{us}");
+    }
 }

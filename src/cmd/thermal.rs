@@ -1,7 +1,7 @@
 //! `fdmlab thermal …` (identify, place, simulate, grid, gcode), `fdmlab export
 //! thermal` and `fdmlab bench thermal`.
 
-use super::values::{parse_bed_mm, value_name, FirmwareArg, LogFormatArg, MethodArg, ThermalFormatArg};
+use super::values::{parse_bed_mm, value_name, FirmwareArg, LogFormatArg, MethodArg};
 use super::Ctx;
 use anyhow::Context;
 use fdmlab_datasets::thermal::{self as tlog, export, manifest, marlin::MarlinOptions, step_gcode, LogFormat, ReadOptions, Uniformity};
@@ -204,7 +204,7 @@ pub struct ExportArgs {
     #[command(flatten)]
     model: ModelArg,
     #[arg(long, value_enum)]
-    format: ThermalFormatArg,
+    format: export::Format,
     /// Heater power, W (MPC formats: a log only identifies power/capacity).
     #[arg(long = "heater-power-w")]
     heater_power_w: Option<f64>,
@@ -585,46 +585,12 @@ fn gcode(a: GcodeArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 /// `fdmlab export thermal …`
 pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let format = export::Format::from(a.format);
-    let format_name = value_name(&a.format);
+    let format = a.format;
+    let format_name = value_name(&format);
     let (ss, model, name) = load_model(&a.model.model, ctx)?;
     let note = format!("fdmlab {} from model {}", env!("CARGO_PKG_VERSION"), name);
-    let discrete = |ss: &StateSpace| -> anyhow::Result<StateSpace> {
-        Ok(match ss.dt_s {
-            Some(_) => ss.heater_plant()?,
-            None => ss.heater_plant()?.c2d(1.0)?,
-        })
-    };
-    let physics = || -> anyhow::Result<fdmlab_models::thermal::physics::Rates> {
-        model.as_ref().and_then(|m| m.physics).ok_or_else(|| bad(format!("format {format_name} needs a grey-box model (identify with the greybox family)")))
-    };
-    let power = || a.heater_power_w.ok_or_else(|| bad("--heater-power-w is required for MPC formats (a temperature log only identifies power/capacity)"));
-    let text = match format {
-        export::Format::MarlinMpc => export::marlin_mpc(&export::mpc_physics_from_rates(&physics()?, power()?, a.filament_heat)?, &note)?,
-        export::Format::KlipperMpc => export::klipper_mpc(&export::mpc_physics_from_rates(&physics()?, power()?, a.filament_heat)?, &note)?,
-        export::Format::Reprap => {
-            let rates = physics()?;
-            let fo = control::fopdt_of(&discrete(&ss)?, 4000.0).map_err(|e| bad(e.to_string()))?;
-            export::reprap(&rates, fo.dead_time_s, &note)?
-        }
-        export::Format::MarlinPid | export::Format::KlipperPid => {
-            let plant = discrete(&ss)?;
-            let fo = control::fopdt_of(&plant, 4000.0).map_err(|e| bad(e.to_string()))?;
-            let pid = control::imc_pid(&fo, plant.dt_s.unwrap_or(1.0));
-            if format == export::Format::MarlinPid {
-                export::marlin_pid(&pid, &note)?
-            } else {
-                export::klipper_pid(&pid, &note)?
-            }
-        }
-        export::Format::CHeader => {
-            if a.poles.is_empty() {
-                return Err(bad("c-header needs --poles"));
-            }
-            let (_, p) = design(&ss, &a.poles, None, None)?;
-            export::c_header(&p, &name)?
-        }
-    };
+    let design = CliDesign { ss: &ss, model: model.as_ref(), args: &a, name: &name, format_name: &format_name };
+    let text = export::export(format, &design, &note)?;
     match &a.out {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
@@ -639,6 +605,53 @@ pub fn export(a: ExportArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// What `export thermal` makes its formats from: the model file and the
+/// flags, each piece designed only when the chosen format asks for it.
+struct CliDesign<'a> {
+    ss: &'a StateSpace,
+    model: Option<&'a ThermalModel>,
+    args: &'a ExportArgs,
+    name: &'a str,
+    format_name: &'a str,
+}
+
+impl CliDesign<'_> {
+    /// The heater plant, discretised at 1 s when the model is continuous.
+    fn discrete(&self) -> anyhow::Result<StateSpace> {
+        Ok(match self.ss.dt_s {
+            Some(_) => self.ss.heater_plant()?,
+            None => self.ss.heater_plant()?.c2d(1.0)?,
+        })
+    }
+}
+
+impl export::Design for CliDesign<'_> {
+    type Error = anyhow::Error;
+    fn rates(&self) -> anyhow::Result<fdmlab_models::thermal::physics::Rates> {
+        self.model.and_then(|m| m.physics).ok_or_else(|| bad(format!("format {} needs a grey-box model (identify with the greybox family)", self.format_name)))
+    }
+    fn mpc_inputs(&self) -> anyhow::Result<(f64, f64)> {
+        let power =
+            self.args.heater_power_w.ok_or_else(|| bad("--heater-power-w is required for MPC formats (a temperature log only identifies power/capacity)"))?;
+        Ok((power, self.args.filament_heat))
+    }
+    fn dead_time_s(&self) -> anyhow::Result<f64> {
+        Ok(control::fopdt_of(&self.discrete()?, 4000.0).map_err(|e| bad(e.to_string()))?.dead_time_s)
+    }
+    fn pid(&self) -> anyhow::Result<control::Pid> {
+        let plant = self.discrete()?;
+        let fo = control::fopdt_of(&plant, 4000.0).map_err(|e| bad(e.to_string()))?;
+        Ok(control::imc_pid(&fo, plant.dt_s.unwrap_or(1.0)))
+    }
+    fn placement(&self) -> anyhow::Result<(control::Placement, String)> {
+        if self.args.poles.is_empty() {
+            return Err(bad("c-header needs --poles"));
+        }
+        let (_, p) = design(self.ss, &self.args.poles, None, None)?;
+        Ok((p, self.name.to_string()))
+    }
 }
 
 /// `fdmlab bench thermal`: identification speed on a long twin log, and the

@@ -4,7 +4,7 @@
 use super::Ctx;
 use anyhow::Context;
 use fdmlab_datasets::turns as corpus;
-use fdmlab_models::turns::baselines::{self, KnnParams, PreviousLayer, Task};
+use fdmlab_models::turns::baselines::{self, HorizonTask, KnnParams, PreviousLayer};
 use fdmlab_models::turns::planner::{late_summary, Cornering, Lookahead, PlannerParams};
 use fdmlab_models::turns::{junctions, Junction, Move};
 use std::path::{Path, PathBuf};
@@ -30,6 +30,14 @@ pub enum TurnsCommand {
     Eval(super::turns_net::EvalArgs),
     /// Write the network's predictions for a G-code file as CSV.
     Predict(super::turns_net::PredictArgs),
+    /// Leave one slicer out: per slicer of the --test files, train and tune without it and score its files.
+    #[command(
+        mut_arg("hidden", |a| a.help(super::turns_net::train_help("Hidden layer widths, comma-separated", |p| p.hidden.iter().map(ToString::to_string).collect::<Vec<_>>().join(",")))),
+        mut_arg("epochs", |a| a.help(super::turns_net::train_help("Training epochs", |p| p.train.epochs.to_string()))),
+        mut_arg("batch", |a| a.help(super::turns_net::train_help("Mini-batch rows", |p| p.train.batch_size.to_string()))),
+        mut_arg("lr", |a| a.help(super::turns_net::train_help("Adam's initial learning rate", |p| p.train.learning_rate.to_string())))
+    )]
+    Loso(super::turns_loso::LosoArgs),
 }
 
 /// Arguments of `fdmlab turns moves`.
@@ -99,9 +107,9 @@ pub struct BaselinesArgs {
     /// Corner: a turn above this many degrees…
     #[arg(long, default_value_t = 45.0)]
     corner_deg: f64,
-    /// …within this many mm of path from the target.
-    #[arg(long, default_value_t = 10.0)]
-    window_mm: f64,
+    /// …within this many mm of path from the target (the network's corner window).
+    #[arg(long, alias = "window-mm", default_value_t = fdmlab_models::turns::features::Task::default().corner_window_mm)]
+    corner_window_mm: f64,
     /// G-code files the k-nearest-neighbours baseline learns from (default: the shipped corpus's train split).
     #[arg(long, num_args = 1..)]
     train: Vec<PathBuf>,
@@ -116,6 +124,7 @@ pub fn turns(cmd: TurnsCommand, ctx: &Ctx) -> anyhow::Result<()> {
         TurnsCommand::Train(a) => super::turns_net::train(a, ctx),
         TurnsCommand::Eval(a) => super::turns_net::eval(a, ctx),
         TurnsCommand::Predict(a) => super::turns_net::predict(a, ctx),
+        TurnsCommand::Loso(a) => super::turns_loso::loso(a, ctx),
     }
 }
 
@@ -222,7 +231,7 @@ fn planner(a: PlannerArgs, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 fn baselines_cmd(a: BaselinesArgs, ctx: &Ctx) -> anyhow::Result<()> {
-    let task = Task { horizon: a.horizon, corner_deg: a.corner_deg, window_mm: a.window_mm }.check()?;
+    let task = HorizonTask { horizon: a.horizon, corner_deg: a.corner_deg, corner_window_mm: a.corner_window_mm }.check()?;
     let j = junctions(&read_moves(&a.file)?);
     let train_paths: Vec<PathBuf> = if a.train.is_empty() {
         let dir = corpus::shipped_corpus();
@@ -249,7 +258,7 @@ fn baselines_cmd(a: BaselinesArgs, ctx: &Ctx) -> anyhow::Result<()> {
     });
     ctx.emit(&value, || {
         let mut t =
-            format!("{}: H = {}, corner > {}° within {} mm, {} targets\n", a.file.display(), task.horizon, task.corner_deg, task.window_mm, truth.len());
+            format!("{}: H = {}, corner > {}° within {} mm, {} targets\n", a.file.display(), task.horizon, task.corner_deg, task.corner_window_mm, truth.len());
         let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
         for (n, s) in &scores {
             t.push_str(&format!("  {n:<15} MAE {:>7.2}°  F1 {:>6}  AUC {:>6}\n", s.angle_mae_deg, f(s.corner_f1), f(s.corner_auc)));

@@ -78,12 +78,37 @@ pub struct PredictArgs {
 pub struct ExportTurnsArgs {
     #[arg(long, default_value = "latest")]
     pub model: String,
-    /// c-header | json
-    #[arg(long)]
-    pub format: String,
+    /// Export format.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
     /// Output file (default: stdout).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
+}
+
+/// Formats of `fdmlab export turns`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum ExportFormat {
+    /// C99 header: fixed-size arrays, no allocation.
+    CHeader,
+    /// JSON: task, standardisation, weights, thresholds.
+    Json,
+}
+
+impl ExportFormat {
+    fn format(self) -> TurnExportFormat {
+        match self {
+            ExportFormat::CHeader => TurnExportFormat::CHeader,
+            ExportFormat::Json => TurnExportFormat::Json,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            ExportFormat::CHeader => "c-header",
+            ExportFormat::Json => "json",
+        }
+    }
 }
 
 /// Name of the model artifact of turn runs.
@@ -134,7 +159,7 @@ pub fn train_help(what: &str, default: impl Fn(&fdmlab_models::nets::TrainParams
     format!("{what} (default {})", default(&net::default_params(7)))
 }
 
-fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
+pub(super) fn task_of(a: &TrainArgs) -> anyhow::Result<Task> {
     let t = Task { horizons: a.horizons.clone(), corner_window_mm: a.corner_window_mm };
     check_task(&t).map_err(Error::bad_input)?;
     check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
@@ -232,7 +257,7 @@ fn downstream_json(d: &Downstream) -> serde_json::Value {
 }
 
 /// Text of one file's (or the aggregate's) scores and line-width comparison.
-fn scores_text(s: &mut String, horizons: &[evaluate::HorizonScores], down: &[Downstream], gains: Option<&[evaluate::Gain]>) {
+pub(super) fn scores_text(s: &mut String, horizons: &[evaluate::HorizonScores], down: &[Downstream], gains: Option<&[evaluate::Gain]>) {
     for h in horizons {
         let _ = writeln!(
             s,
@@ -288,15 +313,19 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     check_blocks(&a.blocks).map_err(|e| Error::bad_input(format!("--blocks {e}")))?;
     let paths = gcode_files(&a.files)?;
     let mut files = vec![];
+    let mut slicers = vec![];
     for p in &paths {
         files.push((p.display().to_string(), one_file(p)?.0));
+        slicers.push(fdmlab_datasets::turns::slicer_of(p)?);
     }
     let train = training_junctions(&store, run.as_ref())?;
-    let (summary, per_file) = evaluate::evaluate(&files, &model, &train, &a.blocks, &a.horizon, a.seed)?;
+    let (mut summary, per_file) = evaluate::evaluate(&files, &model, &train, &a.blocks, &a.horizon, a.seed)?;
+    summary.slicers = evaluate::by_group(&per_file, &slicers, a.seed);
+    let groups = &summary.slicers;
     let value = serde_json::json!({
         "model": hash.0, "horizons": a.horizon, "blocks": a.blocks, "seed": a.seed,
-        "files": per_file.iter().map(|f| serde_json::json!({
-            "file": f.file, "junctions": f.junctions,
+        "files": per_file.iter().enumerate().map(|(k, f)| serde_json::json!({
+            "file": f.file, "junctions": f.junctions, "slicer": slicers[k],
             "scores": f.horizons.iter().map(scores_json).collect::<Vec<_>>(),
             "downstream": f.downstream.iter().map(downstream_json).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
@@ -304,11 +333,14 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
             "files": summary.files, "junctions": summary.junctions,
             "scores": summary.horizons.iter().map(scores_json).collect::<Vec<_>>(),
             "downstream": summary.downstream.iter().map(downstream_json).collect::<Vec<_>>(),
-            "gains": summary.gains.iter().map(|g| serde_json::json!({
-                "method": g.method, "blocks": g.blocks, "horizon": g.horizon, "gain_pp": g.gain_pp, "lo_pp": g.lo_pp, "hi_pp": g.hi_pp,
-                "files_worse": g.files_worse, "worst_file_pp": finite(g.worst_file_pp), "per_file_pp": g.per_file_pp,
-            })).collect::<Vec<_>>(),
+            "gains": summary.gains.iter().map(gain_json).collect::<Vec<_>>(),
         },
+        "slicers": groups.iter().map(|g| serde_json::json!({
+            "slicer": g.group, "files": g.files, "junctions": g.junctions,
+            "scores": g.horizons.iter().map(scores_json).collect::<Vec<_>>(),
+            "downstream": g.downstream.iter().map(downstream_json).collect::<Vec<_>>(),
+            "gains": g.gains.iter().map(gain_json).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
     });
     ctx.emit(&value, || {
         let mut s = String::new();
@@ -316,11 +348,22 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
             let _ = writeln!(s, "{}: {} junctions", f.file, f.junctions);
             scores_text(&mut s, &f.horizons, &f.downstream, None);
         }
+        for g in groups {
+            let _ = writeln!(s, "slicer {}: {} file(s), {} junctions (AUC not pooled)", g.group, g.files, g.junctions);
+            scores_text(&mut s, &g.horizons, &g.downstream, Some(&g.gains));
+        }
         let _ = writeln!(s, "aggregate: {} file(s), {} junctions", summary.files, summary.junctions);
         scores_text(&mut s, &summary.horizons, &summary.downstream, Some(&summary.gains));
         s
     });
     Ok(())
+}
+
+fn gain_json(g: &evaluate::Gain) -> serde_json::Value {
+    serde_json::json!({
+        "method": g.method, "blocks": g.blocks, "horizon": g.horizon, "gain_pp": g.gain_pp, "lo_pp": g.lo_pp, "hi_pp": g.hi_pp,
+        "files_worse": g.files_worse, "worst_file_pp": finite(g.worst_file_pp), "per_file_pp": g.per_file_pp,
+    })
 }
 
 /// JSON has no NaN: a score without both classes is `null`.
@@ -350,12 +393,11 @@ pub fn predict(a: PredictArgs, ctx: &Ctx) -> anyhow::Result<()> {
 pub fn export(a: ExportTurnsArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let store = ctx.store()?;
     let Loaded { model, hash, .. } = load_model(&store, &a.model)?;
-    let fmt = TurnExportFormat::parse(&a.format)?;
-    let text = turnnet::export::export(&model, fmt, &format!("model {}", &hash.0[..12]))?;
+    let text = turnnet::export::export(&model, a.format.format(), &format!("model {}", &hash.0[..12]))?;
     match &a.output {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;
-            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format, "model": hash.0, "bytes": text.len(), "weight_bytes": model.weight_bytes()}), || {
+            ctx.emit(&serde_json::json!({"output": p.display().to_string(), "format": a.format.name(), "model": hash.0, "bytes": text.len(), "weight_bytes": model.weight_bytes()}), || {
                 format!("wrote {} ({} bytes of float32 weights)\n", p.display(), model.weight_bytes())
             });
         }
@@ -447,9 +489,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
 fn c_inference_us(model: &TurnModel, row: &[f32]) -> anyhow::Result<Option<f64>> {
     let header = turnnet::export::export(model, TurnExportFormat::CHeader, "bench")?;
     let xs: Vec<String> = row.iter().map(|v| format!("{v:e}f")).collect();
-    let main = format!(
-        "#define _POSIX_C_SOURCE 199309L\n#include <stdio.h>\n#include <time.h>\n#include \"fdmlab_turns.h\"\nint main(void) {{\n  float x[FDMLAB_TURNS_INPUTS] = {{{}}};\n  float ang[FDMLAB_TURNS_HORIZONS], cp[FDMLAB_TURNS_HORIZONS];\n  volatile float sink = 0;\n  struct timespec a, b;\n  clock_gettime(CLOCK_MONOTONIC, &a);\n  for (int i = 0; i < 1000000; ++i) {{ x[0] += 1e-7f; fdmlab_turns_predict(x, ang, cp); sink += ang[0] + cp[0]; }}\n  clock_gettime(CLOCK_MONOTONIC, &b);\n  printf(\"%.6f\\n\", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / 1e6 / 1e3);\n  return sink < -1e30f;\n}}\n",
-        xs.join(",")
-    );
+    // The timing program, with the row as a macro defined before it.
+    let main = format!("#define FDMLAB_ROW {}\n{}", xs.join(","), include_str!("turns_c_bench.c"));
     super::time_c_program("fdmlab_turns.h", header, &main, 2)
 }

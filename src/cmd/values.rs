@@ -3,7 +3,7 @@
 
 use fdmlab_datasets::pa::calibration::{Firmware, Pattern};
 use fdmlab_datasets::pa::export::ExportFormat;
-use fdmlab_datasets::thermal::{export::Format as ThermalFormat, LogFormat};
+use fdmlab_datasets::thermal::LogFormat;
 use fdmlab_models::thermal::control::PlacementMethod;
 
 /// Firmware dialect (`--firmware`).
@@ -69,30 +69,6 @@ impl From<KaFormatArg> for ExportFormat {
             KaFormatArg::KlipperAdaptive => ExportFormat::KlipperAdaptive,
             KaFormatArg::CHeader => ExportFormat::CHeader,
             KaFormatArg::Json => ExportFormat::Json,
-        }
-    }
-}
-
-/// Hotend model/controller export format (`export thermal --format`).
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum ThermalFormatArg {
-    MarlinMpc,
-    MarlinPid,
-    KlipperPid,
-    KlipperMpc,
-    Reprap,
-    CHeader,
-}
-
-impl From<ThermalFormatArg> for ThermalFormat {
-    fn from(f: ThermalFormatArg) -> ThermalFormat {
-        match f {
-            ThermalFormatArg::MarlinMpc => ThermalFormat::MarlinMpc,
-            ThermalFormatArg::MarlinPid => ThermalFormat::MarlinPid,
-            ThermalFormatArg::KlipperPid => ThermalFormat::KlipperPid,
-            ThermalFormatArg::KlipperMpc => ThermalFormat::KlipperMpc,
-            ThermalFormatArg::Reprap => ThermalFormat::Reprap,
-            ThermalFormatArg::CHeader => ThermalFormat::CHeader,
         }
     }
 }

@@ -167,3 +167,30 @@ fn the_cycle_check_finds_a_planted_cycle() {
     let mods: BTreeMap<_, _> = mods.into_iter().map(|(k, v)| if k == s(&["b"]) { (k, "use crate::c;\n".to_string()) } else { (k, v) }).collect();
     assert_eq!(cycle(&graph(&mods)), None);
 }
+
+/// docs/limits.md lists each checked parameter type's limits table; every row
+/// must be a row of the doc table in the source file it names (the code's
+/// table is the owner, the page a checked copy), and every source names a table.
+#[test]
+fn the_limits_page_copies_the_types_own_tables() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let page = std::fs::read_to_string(root.join("docs/limits.md")).expect("docs/limits.md");
+    let mut sources = 0;
+    for section in page.split("\n## ").skip(1) {
+        let title = section.lines().next().unwrap_or("");
+        let path = section.split("Source: `").nth(1).and_then(|s| s.split('`').next()).unwrap_or_else(|| panic!("section {title} names no source"));
+        let code = std::fs::read_to_string(root.join(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
+        let doc_rows: BTreeSet<&str> = code
+            .lines()
+            .filter_map(|l| l.trim_start().strip_prefix("/// ").or_else(|| l.trim_start().strip_prefix("//! ")))
+            .filter(|l| l.starts_with('|'))
+            .collect();
+        let rows: Vec<&str> = section.lines().filter(|l| l.starts_with('|')).collect();
+        assert!(rows.len() > 2, "section {title} has no table");
+        for row in rows {
+            assert!(doc_rows.contains(row), "docs/limits.md, section {title}: row not in {path}'s doc table:\n{row}");
+        }
+        sources += 1;
+    }
+    assert!(sources >= 8, "{sources} sections");
+}

@@ -34,6 +34,7 @@ fn choices_are_checked_and_listed() {
         (&["gcode", "pa", "--pattern", "spiral", "-o", "x.gcode"], "lines, tower"),
         (&["export", "ka", "--model", "latest", "--format", "cura"], "c-header"),
         (&["export", "thermal", "--model", "m.json", "--format", "pid"], "marlin-mpc"),
+        (&["export", "turns", "--model", "latest", "--format", "onnx"], "c-header, json"),
         (&["thermal", "place", "--model", "m.json", "--poles", "-1", "--method", "lqr"], "ackermann, hessenberg"),
     ] {
         let out = sb.run(args);

@@ -4,7 +4,7 @@
 use crate::common::{stderr, Sandbox};
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
 use fdmlab_models::discrepancy::thermal::discrepancy;
-use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::discrepancy::ValidSelectOptions;
 use fdmlab_models::thermal::twin::Twin;
 
 /// One case's verdict.
@@ -18,8 +18,25 @@ struct Verdict {
 
 #[test]
 fn hidden_effects_are_named_and_the_gap_shrinks() {
+    check_hidden_set(HiddenOptions::default().seed);
+}
+
+/// Seeds of the thermal hidden set never run while the workflow or its gate were
+/// developed (the default seed 11 was; issue #27, Deliver 3). Add new seeds, never
+/// swap them for ones that pass.
+const UNTOUCHED_SEEDS: [u64; 2] = [7311, 7312];
+
+#[test]
+fn hidden_effects_are_named_on_untouched_seeds() {
+    for seed in UNTOUCHED_SEEDS {
+        check_hidden_set(seed);
+    }
+}
+
+/// The issue's criteria on the hidden set of `seed`; panics with the failures listed.
+fn check_hidden_set(seed: u64) {
     // 125 logs: 20 effect-free, 7 effects × 3 magnitudes × 2 noise levels × 2 seeds, 21 pairs.
-    let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, ..Default::default() };
+    let opts = HiddenOptions { samples: 2400, seeds: 2, null_cases: 10, seed, ..Default::default() };
     let cases = hidden::generate(&Twin::default(), &opts).expect("hidden set");
     let verdicts: Vec<Verdict> = std::thread::scope(|s| {
         let chunks: Vec<_> = cases
@@ -29,7 +46,7 @@ fn hidden_effects_are_named_and_the_gap_shrinks() {
                     chunk
                         .iter()
                         .map(|c| {
-                            let o = discrepancy(vec![c.data.clone()], None, &SelectOptions::default()).expect("workflow");
+                            let o = discrepancy(vec![c.data.clone()], None, &ValidSelectOptions::default()).expect("workflow");
                             let mut named: Vec<String> = o.report.effects.iter().map(|e| e.name.clone()).collect();
                             named.sort();
                             let mut truth = c.answer.effects.clone();
@@ -58,12 +75,16 @@ fn hidden_effects_are_named_and_the_gap_shrinks() {
     let right = qualifying.iter().filter(|v| v.named == v.truth).count();
     let wrong: Vec<String> = qualifying.iter().filter(|v| v.named != v.truth).map(|v| format!("{:?} → {:?}", v.truth, v.named)).collect();
     assert!(qualifying.len() >= 40, "{}", qualifying.len());
-    eprintln!("thermal hidden set: {false_named} of {} effect-free logs named an effect; {right} of {} qualifying cases right", null.len(), qualifying.len());
+    eprintln!(
+        "thermal hidden set, seed {seed}: {false_named} of {} effect-free logs named an effect; {right} of {} qualifying cases right",
+        null.len(),
+        qualifying.len()
+    );
     // ≥ 95 % of cases whose effects exceed 3× noise RMS get exactly the right effects.
-    assert!(right * 100 >= 95 * qualifying.len(), "{right} of {} right; wrong: {wrong:?}", qualifying.len());
+    assert!(right * 100 >= 95 * qualifying.len(), "seed {seed}: {right} of {} right; wrong: {wrong:?}", qualifying.len());
     // Where the effects were named, the residual RMS falls by ≥ 50 %.
     for v in qualifying.iter().filter(|v| v.named == v.truth) {
-        assert!(v.rms_after <= 0.5 * v.rms_before, "{:?}: {} → {}", v.truth, v.rms_before, v.rms_after);
+        assert!(v.rms_after <= 0.5 * v.rms_before, "seed {seed}, {:?}: {} → {}", v.truth, v.rms_before, v.rms_after);
     }
 }
 
@@ -220,4 +241,26 @@ fn bad_data_is_refused_with_its_location_and_writes_nothing() {
     assert!(!sb.path().join("rep").exists());
     let out = sb.run(&["discrepancy", "--domain", "thermal"]);
     assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn selection_limits_are_one_table_for_the_cli_and_the_spec() {
+    // The limits of `SelectOptions::check` (max_effects 1–7, alpha in (0, 0.5)),
+    // reached from the CLI and from a spec; nothing is run or written.
+    let sb = Sandbox::new();
+    sb.write("log.csv", "time_s,heater_duty,fan_duty,temperature_c\n0,0.5,0,22\n1,0.5,0,22\n");
+    for n in ["0", "50"] {
+        let out = sb.run(&["discrepancy", "--domain", "thermal", "--data", "log.csv", "--max-effects", n]);
+        assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+        let err = stderr(&out);
+        assert!(err.contains("--max-effects") && err.contains(&format!("`max_effects` = {n}")) && err.contains("1–7"), "{err}");
+    }
+    let spec = std::fs::read_to_string(crate::common::experiments().join("discrepancy-thermal.toml")).expect("bundled spec");
+    sb.write("a.toml", &spec.replace("alpha = 0.01", "alpha = 0.7"));
+    let out = sb.run(&["run", "a.toml"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let err = stderr(&out);
+    // Located at the key's line (line 14 of the bundled spec) and naming it.
+    assert!(err.contains("a.toml:14") && err.contains("discrepancy.alpha") && err.contains("(0, 0.5)"), "{err}");
+    assert!(!sb.store().join("runs").exists(), "nothing written");
 }

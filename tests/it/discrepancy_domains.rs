@@ -1,13 +1,15 @@
 //! The discrepancy workflow's motion and extrusion domains on their hidden-effect
-//! sets, and the motion command on one case. Criteria from issue #11: the right
-//! effects named in ≥ 95 % of the cases whose contribution exceeds 3× the noise
-//! RMS; an effect named on effect-free data in ≤ 5 %; residual RMS down ≥ 50 %
-//! after the addition; two hidden effects → both
-//! named. The truth is the generator's answer, never the workflow's output.
+//! sets, and the motion command on one case. Criteria from issues #11 and #27: the
+//! right effects named in ≥ 95 % of the cases whose contribution exceeds 3× the
+//! noise RMS; an effect named on effect-free data in ≤ 5 %; residual RMS down
+//! ≥ 50 % in every case where effects are named (no allowance, #27); two hidden
+//! effects → both named, never one alone or a wrong one (a pair named neither
+//! and reported unexplained counts among the 5 % wrong). The truth is the
+//! generator's answer, never the workflow's output.
 
 use fdmlab_models::discrepancy::extrusion::{self, hidden as ehidden};
 use fdmlab_models::discrepancy::motion::{self, hidden as mhidden};
-use fdmlab_models::discrepancy::{Report, SelectOptions};
+use fdmlab_models::discrepancy::{Report, ValidSelectOptions};
 use fdmlab_models::parallel::par_map;
 
 /// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after.
@@ -16,16 +18,23 @@ struct Verdict {
     truth: Vec<(String, f64)>,
     named: Vec<String>,
     rms: (f64, f64),
+    unexplained: bool,
 }
 
 fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
-    Verdict { id: id.to_string(), truth, named: r.effects.iter().map(|e| e.name.clone()).collect(), rms: (r.before.rms, r.after.rms) }
+    Verdict {
+        id: id.to_string(),
+        truth,
+        named: r.effects.iter().map(|e| e.name.clone()).collect(),
+        rms: (r.before.rms, r.after.rms),
+        unexplained: r.unexplained.is_some(),
+    }
 }
 
 /// Check the issue's criteria over a set of verdicts; panics with the failures listed.
 fn check_criteria(domain: &str, v: &[Verdict]) {
     let strong = |c: &Verdict| !c.truth.is_empty() && c.truth.iter().all(|t| t.1 > 3.0);
-    let listing = |c: &Verdict| format!("{} truth {:?} named {:?} rms {:.4} -> {:.4}", c.id, c.truth, c.named, c.rms.0, c.rms.1);
+    let listing = |c: &Verdict| format!("{} truth {:?} named {:?} rms {:.4} -> {:.4} unexplained {}", c.id, c.truth, c.named, c.rms.0, c.rms.1, c.unexplained);
     let graded: Vec<&Verdict> = v.iter().filter(|c| strong(c)).collect();
     let wrong: Vec<&&Verdict> = graded
         .iter()
@@ -39,9 +48,12 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
         .collect();
     let null: Vec<&Verdict> = v.iter().filter(|c| c.truth.is_empty()).collect();
     let false_alarms: Vec<&&Verdict> = null.iter().filter(|c| !c.named.is_empty()).collect();
-    let not_halved: Vec<&&Verdict> = graded.iter().filter(|c| c.rms.1 > 0.5 * c.rms.0).collect();
+    let not_halved: Vec<&&Verdict> = graded.iter().filter(|c| !c.named.is_empty() && c.rms.1 > 0.5 * c.rms.0).collect();
     let pairs: Vec<&&Verdict> = graded.iter().filter(|c| c.truth.len() == 2).collect();
-    let pairs_missed: Vec<&&&Verdict> = pairs.iter().filter(|c| !c.truth.iter().all(|t| c.named.contains(&t.0))).collect();
+    // A pair is missed when it is half-named or wrongly named; one named neither,
+    // with its residual reported unexplained, is among the wrong cases above.
+    let honest_blank = |c: &Verdict| c.named.is_empty() && c.unexplained;
+    let pairs_missed: Vec<&&&Verdict> = pairs.iter().filter(|c| !honest_blank(c) && !c.truth.iter().all(|t| c.named.contains(&t.0))).collect();
     let report = format!(
         "{domain}: {} graded, {} wrong; {} effect-free, {} false alarms; {} not halved; {} pairs, {} missed\n{}",
         graded.len(),
@@ -63,7 +75,7 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
     assert!(graded.len() >= 20 && null.len() >= 8 && !pairs.is_empty(), "set too small: {report}");
     assert!(wrong.len() as f64 <= 0.05 * graded.len() as f64, "{report}");
     assert!(false_alarms.len() as f64 <= 0.05 * null.len() as f64, "{report}");
-    assert!(not_halved.len() as f64 <= 0.05 * graded.len() as f64, "{report}");
+    assert!(not_halved.is_empty(), "{report}");
     assert!(pairs_missed.is_empty(), "{report}");
 }
 
@@ -71,26 +83,54 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 /// refits (grown horizon, nested grid scans) and the joins of a masked belt compliance.
 /// See docs/discrepancy-domains.md.
 #[test]
-#[ignore = "fails since the #27 gate (contribution >= 1.5 sigma, 99 % region excluding zero, physical range): measured in CI 2026-12-03, 3 of 32 graded cases wrong (stribeck-m0-n1um, cogging-m0-n1um and the stribeck+belt_compliance 3 um pair now name nothing), 0 of 8 false alarms; the gate's margin or the motion effects' contribution test is to be settled under #27; ~12 min: run with --ignored"]
 fn motion_hidden_set_meets_the_issue_criteria() {
-    let cases = mhidden::generate(&mhidden::HiddenConfig::small(3)).expect("generate");
-    let verdicts = par_map(&cases, |c| {
-        let out = motion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
+    check_criteria("motion", &motion_verdicts(3));
+}
+
+fn motion_verdicts(seed: u64) -> Vec<Verdict> {
+    let cases = mhidden::generate(&mhidden::HiddenConfig::small(seed)).expect("generate");
+    par_map(&cases, |c| {
+        let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
         verdict(&c.answer.id, truth, &out.report)
-    });
-    check_criteria("motion", &verdicts);
+    })
+}
+
+/// Seeds of the motion hidden set never run while the workflow or its gate were
+/// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
+const UNTOUCHED_MOTION_SEEDS: [u64; 2] = [7511, 7512];
+
+#[test]
+#[ignore = "~12 min per seed in the debug test profile on 2 cores (the motion workflow's speed, issue #27 Deliver 8, is not met); figures in docs/discrepancy-domains.md; run with --ignored"]
+fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
+    for seed in UNTOUCHED_MOTION_SEEDS {
+        check_criteria(&format!("motion, untouched seed {seed}"), &motion_verdicts(seed));
+    }
+}
+
+fn extrusion_verdicts(seed: u64) -> Vec<Verdict> {
+    let cases = ehidden::generate(&ehidden::HiddenConfig::small(seed)).expect("generate");
+    par_map(&cases, |c| {
+        let out = extrusion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default()).expect("workflow");
+        let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm3_s / c.answer.noise_sd_mm3_s)).collect();
+        verdict(&c.answer.id, truth, &out.report)
+    })
 }
 
 #[test]
 fn extrusion_hidden_set_meets_the_issue_criteria() {
-    let cases = ehidden::generate(&ehidden::HiddenConfig::small(3)).expect("generate");
-    let verdicts = par_map(&cases, |c| {
-        let out = extrusion::discrepancy(c.data.clone(), None, &SelectOptions::default()).expect("workflow");
-        let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm3_s / c.answer.noise_sd_mm3_s)).collect();
-        verdict(&c.answer.id, truth, &out.report)
-    });
-    check_criteria("extrusion", &verdicts);
+    check_criteria("extrusion", &extrusion_verdicts(3));
+}
+
+/// Seeds of the extrusion hidden set never run while the workflow or its gate were
+/// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
+const UNTOUCHED_EXTRUSION_SEEDS: [u64; 2] = [7411, 7412];
+
+#[test]
+fn extrusion_hidden_set_meets_the_criteria_on_untouched_seeds() {
+    for seed in UNTOUCHED_EXTRUSION_SEEDS {
+        check_criteria(&format!("extrusion, untouched seed {seed}"), &extrusion_verdicts(seed));
+    }
 }
 
 /// The motion command on one hidden case (1 µm noise, answers kept by the generator):

@@ -7,16 +7,11 @@ use crate::common::{copy_spec, stderr, Sandbox};
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
 
-/// The server, or `None` (the test says it is skipped) when
-/// `MLFLOW_TRACKING_URI` is unset; `scripts/test.sh` always sets it.
-fn tracking_uri() -> Option<String> {
-    match std::env::var("MLFLOW_TRACKING_URI") {
-        Ok(v) if !v.is_empty() => Some(v),
-        _ => {
-            eprintln!("SKIPPED: MLFLOW_TRACKING_URI is not set; scripts/test.sh starts an MLflow server (scripts/services/mlflow.sh) and sets it");
-            None
-        }
-    }
+/// The server; a test that needs it fails (never skips) when
+/// `MLFLOW_TRACKING_URI` is unset, as the Slurm and S3 tests do
+/// (`scripts/test.sh` starts the server and sets it).
+fn tracking_uri() -> String {
+    crate::common::service_env("MLFLOW_TRACKING_URI")
 }
 
 /// MLflow's REST API, read with a plain HTTP client.
@@ -96,7 +91,7 @@ fn ka_table() -> String {
 
 #[test]
 fn push_maps_runs_models_and_artifacts_and_a_second_push_adds_nothing() {
-    let Some(uri) = tracking_uri() else { return };
+    let uri = tracking_uri();
     let rest = Rest::new(&uri);
     let sb = Sandbox::new();
     // A fresh experiment name per test run: the server may have seen others.
@@ -210,6 +205,58 @@ fn push_maps_runs_models_and_artifacts_and_a_second_push_adds_nothing() {
         let filter = format!("name='fdmlab-thermal' and run_id='{}'", r["info"]["run_id"].as_str().expect("id"));
         let v = rest.get("/api/2.0/mlflow/model-versions/search", &[("filter", &filter)]);
         assert_eq!(v["model_versions"].as_array().map(Vec::len), Some(1), "{v}");
+    }
+}
+
+#[test]
+fn a_trained_turn_network_is_registered_under_its_alias() {
+    let uri = tracking_uri();
+    let rest = Rest::new(&uri);
+    let sb = Sandbox::new();
+    // Tiny training: one small file of the shipped corpus, one epoch, one layer of 8.
+    std::fs::copy(fdmlab_datasets::turns::shipped_corpus().join("polygon-0--prusa-slicer--00.gcode.gz"), sb.path().join("p.gcode.gz")).expect("copy");
+    let trained = sb.json(&["turns", "train", "--gcode", "p.gcode.gz", "--epochs", "1", "--hidden", "8"]);
+    let run = trained["run"].as_str().expect("run").to_string();
+    let record = sb.json(&["runs", "show", &run]);
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_nanos();
+    let alias = format!("turns-it-{nanos}");
+    let pushed = sb.json(&["mlflow", "push", &run, "--tracking-uri", &uri, "--alias", &alias]);
+    let p = &pushed["runs"][0];
+    assert_eq!((p["run"].as_str(), p["outcome"].as_str()), (Some(run.as_str()), Some("created")), "{pushed}");
+    let mlflow_run = p["mlflow_run_id"].as_str().expect("mlflow run id");
+    let version = p["models"][0][1].as_str().expect("version").to_string();
+    assert_eq!(p["models"][0], json!(["fdmlab-turns", version, alias]), "{pushed}");
+
+    // The registered model, read back: the alias names this run's version.
+    let model = rest.get("/api/2.0/mlflow/registered-models/get", &[("name", "fdmlab-turns")]);
+    let aliases = model["registered_model"]["aliases"].as_array().expect("aliases");
+    assert!(aliases.iter().any(|a| a["alias"] == json!(alias) && a["version"] == json!(version)), "{model}");
+    let by_alias = rest.get("/api/2.0/mlflow/registered-models/alias", &[("name", "fdmlab-turns"), ("alias", &alias)]);
+    let mv = &by_alias["model_version"];
+    assert_eq!((mv["run_id"].as_str(), mv["version"].as_str()), (Some(mlflow_run), Some(version.as_str())), "{by_alias}");
+    assert!(mv["source"].as_str().expect("source").ends_with("/models/turns-train"), "{by_alias}");
+    assert_eq!(pairs(&mv["tags"]).get("fdmlab.run_id"), Some(&json!(run)), "{by_alias}");
+
+    // The version's files are the training stage's outputs, byte for byte.
+    let stage = record["stages"].as_array().expect("stages").iter().find(|s| s["name"] == "turns train").expect("turns train stage");
+    let outputs: Vec<(String, String)> = stage["outputs"]
+        .as_array()
+        .expect("outputs")
+        .iter()
+        .map(|o| (format!("models/turns-train/{}", o["name"].as_str().expect("name")), o["hash"].as_str().expect("hash").to_string()))
+        .collect();
+    assert!(outputs.iter().any(|(f, _)| f.ends_with(".json")) && outputs.iter().any(|(f, _)| f.ends_with(".bpk")), "{outputs:?}");
+    // MLflow lists a folder sorted by name.
+    let mut expected: Vec<String> = outputs.iter().map(|(f, _)| f.clone()).collect();
+    expected.sort();
+    assert_eq!(rest.artifacts(mlflow_run, "models/turns-train"), expected);
+    let exp_id = p["experiment_id"].as_str().expect("experiment id");
+    for (file, hash) in &outputs {
+        let (status, bytes) = rest.send(rest.http.get(format!("{}/api/2.0/mlflow-artifacts/artifacts/{exp_id}/{mlflow_run}/artifacts/{file}", rest.base)));
+        assert_eq!(status, 200, "{file}");
+        let stored = sb.run(&["cat", hash]);
+        assert!(stored.status.success(), "{}", stderr(&stored));
+        assert_eq!(bytes, stored.stdout, "{file}");
     }
 }
 

@@ -43,6 +43,37 @@ fn every_corpus_file_streams_and_matches_its_manifest() {
 }
 
 #[test]
+fn the_manifests_split_check_names_a_family_in_two_splits() {
+    // `Manifest::check_splits` (what a full corpus built outside the repository
+    // is checked with, as build.py checks it): the shipped manifest passes; move
+    // one file of a training family to test and it names the family and both files.
+    let (dir, mut m) = corpus();
+    m.check_splits(&dir).expect("the shipped splits are disjoint");
+    let first = m.files.iter().position(|f| f.split == "train").expect("a training file");
+    let family = m.files[first].family.clone();
+    let other = m.files.iter().rposition(|f| f.family == family).expect("the family's last file");
+    assert_ne!(first, other, "the family has two files");
+    m.files[other].split = "test".into();
+    let err = m.check_splits(&dir).expect_err("a family in two splits").to_string();
+    assert!(err.contains(&format!("family {family} is in splits train")) && err.contains(&m.files[other].file), "{err}");
+}
+
+#[test]
+fn the_reader_names_each_slicer_from_its_header() {
+    let (dir, m) = corpus();
+    for slicer in ["prusa-slicer", "slic3r", "cura-engine", "synthetic"] {
+        let f = m.files.iter().find(|f| f.slicer == slicer).expect("a file of each slicer");
+        assert_eq!(fdmlab_datasets::turns::slicer_of(&dir.join(&f.file)).expect("reads"), slicer, "{}", f.file);
+    }
+    let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/testdata/slicers");
+    for (file, slicer) in
+        [("orcaslicer", "orcaslicer"), ("bambu-studio", "bambu-studio"), ("superslicer", "superslicer"), ("cura", "cura-engine"), ("simplify3d", "simplify3d")]
+    {
+        assert_eq!(fdmlab_datasets::turns::slicer_of(&fixtures.join(format!("{file}.gcode"))).expect("reads"), slicer);
+    }
+}
+
+#[test]
 fn the_bundled_specs_splits_follow_the_manifests_families() {
     // experiments/turn-prediction.toml trains, tunes and tests on files of the
     // manifest's train, tune and test splits, so its families are disjoint.

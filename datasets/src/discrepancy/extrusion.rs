@@ -49,7 +49,13 @@ pub fn to_csv(data: &ExtrusionData) -> String {
 
 /// The files of a hidden-effect set ([`super::hidden_set_files`]).
 pub fn hidden_files(config: &extrusion_hidden::HiddenConfig, cases: &[extrusion_hidden::HiddenCase]) -> Result<Vec<(String, Vec<u8>)>, DatasetError> {
-    super::hidden_set_files("extrusion", extrusion_hidden::GENERATOR, config.seed, config, cases.iter().map(|c| (to_csv(&c.data), &c.answer)))
+    super::hidden_set_files(
+        fdmlab_models::discrepancy::DomainName::Extrusion,
+        extrusion_hidden::GENERATOR,
+        config.seed,
+        config,
+        cases.iter().map(|c| (to_csv(&c.data), &c.answer)),
+    )
 }
 
 #[cfg(test)]

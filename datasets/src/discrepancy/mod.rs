@@ -14,7 +14,7 @@ use lines::data_line;
 /// (the order is by effect, so a number in order would give the answer away).
 /// `cases` yields each case's CSV text and answer.
 pub fn hidden_set_files<C: serde::Serialize, A: serde::Serialize>(
-    domain: &str,
+    domain: fdmlab_models::discrepancy::DomainName,
     generator: &str,
     seed: u64,
     config: &C,

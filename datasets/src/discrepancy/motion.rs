@@ -70,7 +70,13 @@ pub fn to_csv(data: &MotionData) -> String {
 
 /// The files of a hidden-effect set ([`super::hidden_set_files`]).
 pub fn hidden_files(config: &motion_hidden::HiddenConfig, cases: &[motion_hidden::HiddenCase]) -> Result<Vec<(String, Vec<u8>)>, DatasetError> {
-    super::hidden_set_files("motion", motion_hidden::GENERATOR, config.seed, config, cases.iter().map(|c| (to_csv(&c.data), &c.answer)))
+    super::hidden_set_files(
+        fdmlab_models::discrepancy::DomainName::Motion,
+        motion_hidden::GENERATOR,
+        config.seed,
+        config,
+        cases.iter().map(|c| (to_csv(&c.data), &c.answer)),
+    )
 }
 
 #[cfg(test)]

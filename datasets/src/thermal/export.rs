@@ -17,8 +17,10 @@ use crate::DatasetError;
 use fdmlab_models::thermal::control::{Pid, Placement};
 use fdmlab_models::thermal::physics::Rates;
 
-/// Export formats.
+/// Export formats: the one list, read by clap (`export thermal --format`,
+/// with the `clap` feature) and written by the `thermal-grid` kind ([`Format::ALL`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Format {
     /// `M306` MPC line.
     MarlinMpc,
@@ -35,21 +37,77 @@ pub enum Format {
 }
 
 impl Format {
-    /// Every format name accepted on the command line.
-    pub const NAMES: [&'static str; 6] = ["marlin-mpc", "marlin-pid", "klipper-pid", "klipper-mpc", "reprap", "c-header"];
+    /// Every format, in the order the `thermal-grid` kind writes them.
+    pub const ALL: [Format; 6] = [Format::MarlinMpc, Format::KlipperMpc, Format::Reprap, Format::MarlinPid, Format::KlipperPid, Format::CHeader];
 
-    /// Parse a format name.
-    pub fn parse(s: &str) -> Result<Format, DatasetError> {
-        Ok(match s {
-            "marlin-mpc" => Format::MarlinMpc,
-            "marlin-pid" => Format::MarlinPid,
-            "klipper-pid" => Format::KlipperPid,
-            "klipper-mpc" => Format::KlipperMpc,
-            "reprap" => Format::Reprap,
-            "c-header" => Format::CHeader,
-            other => return Err(DatasetError::Refused(format!("unknown export format `{other}`; expected one of {}", Format::NAMES.join(", ")))),
-        })
+    /// File name of the format's artifact (the `thermal-grid` kind's `export` stage).
+    pub fn file_name(self) -> &'static str {
+        match self {
+            Format::MarlinMpc => "marlin-mpc.gcode",
+            Format::KlipperMpc => "klipper-mpc.cfg",
+            Format::Reprap => "reprap.g",
+            Format::MarlinPid => "marlin-pid.gcode",
+            Format::KlipperPid => "klipper-pid.cfg",
+            Format::CHeader => "thermal_gains.h",
+        }
     }
+
+    /// Media type of the artifact.
+    pub fn media_type(self) -> &'static str {
+        match self {
+            Format::CHeader => "text/x-c",
+            _ => "text/plain",
+        }
+    }
+
+    /// Whether the format is made from a grey-box model's physical rates
+    /// (Marlin/Klipper MPC, RepRap `M307`) rather than from a controller design.
+    pub fn needs_physics(self) -> bool {
+        matches!(self, Format::MarlinMpc | Format::KlipperMpc | Format::Reprap)
+    }
+}
+
+/// What the formats are made from. [`export`] asks only for what the chosen
+/// format needs, so a caller computes (and fails on) nothing else: the CLI
+/// designs lazily from a model file, the `thermal-grid` kind hands over its
+/// stored designs.
+pub trait Design {
+    /// The caller's error (a refused export converts into it).
+    type Error: From<DatasetError>;
+    /// The grey-box model's identified rates (MPC, `M307`).
+    fn rates(&self) -> Result<Rates, Self::Error>;
+    /// Heater power, W, and filament heat capacity, J/K per mm (MPC).
+    fn mpc_inputs(&self) -> Result<(f64, f64), Self::Error>;
+    /// Dead time of the heater's FOPDT approximation, s (`M307 D`).
+    fn dead_time_s(&self) -> Result<f64, Self::Error>;
+    /// PID gains (`M301`, Klipper PID).
+    fn pid(&self) -> Result<Pid, Self::Error>;
+    /// State-feedback placement and the model name the header states.
+    fn placement(&self) -> Result<(Placement, String), Self::Error>;
+}
+
+/// The one thermal export dispatcher (as `pa::export::export` for K_A):
+/// `format`'s text from `design`, with `note` as its comment line.
+pub fn export<D: Design>(format: Format, design: &D, note: &str) -> Result<String, D::Error> {
+    let mpc = || -> Result<MpcPhysics, D::Error> {
+        let rates = design.rates()?;
+        let (power_w, filament_j_k_mm) = design.mpc_inputs()?;
+        Ok(mpc_physics_from_rates(&rates, power_w, filament_j_k_mm)?)
+    };
+    Ok(match format {
+        Format::MarlinMpc => marlin_mpc(&mpc()?, note)?,
+        Format::KlipperMpc => klipper_mpc(&mpc()?, note)?,
+        Format::Reprap => {
+            let rates = design.rates()?;
+            reprap(&rates, design.dead_time_s()?, note)?
+        }
+        Format::MarlinPid => marlin_pid(&design.pid()?, note)?,
+        Format::KlipperPid => klipper_pid(&design.pid()?, note)?,
+        Format::CHeader => {
+            let (placement, model) = design.placement()?;
+            c_header(&placement, &model)?
+        }
+    })
 }
 
 /// Physical parameters in firmware units, from identified rates and the
@@ -258,6 +316,42 @@ mod tests {
         };
         let h = c_header(&p, "greybox-2").expect("header");
         assert!(h.contains("fdmlab_thermal_L[FDMLAB_THERMAL_STATES] = { 1.5e0, -2e0 };") && h.contains("fdmlab_thermal_M = 2.5e-1;"), "{h}");
-        assert!(Format::parse("marlin-mpc").is_ok() && Format::parse("nope").is_err());
+    }
+
+    /// A design with PID gains only: asking for anything else fails.
+    struct PidOnly(Pid);
+
+    impl Design for PidOnly {
+        type Error = DatasetError;
+        fn rates(&self) -> Result<Rates, DatasetError> {
+            Err(DatasetError::Refused("no grey box".into()))
+        }
+        fn mpc_inputs(&self) -> Result<(f64, f64), DatasetError> {
+            Ok((20.0, 0.0056))
+        }
+        fn dead_time_s(&self) -> Result<f64, DatasetError> {
+            Err(DatasetError::Refused("no plant".into()))
+        }
+        fn pid(&self) -> Result<Pid, DatasetError> {
+            Ok(self.0.clone())
+        }
+        fn placement(&self) -> Result<(Placement, String), DatasetError> {
+            Err(DatasetError::Refused("no placement".into()))
+        }
+    }
+
+    #[test]
+    fn the_dispatcher_asks_only_for_what_a_format_needs() {
+        let pid = Pid { kp: 0.1, ki: 0.001, kd: 0.5, rule: "test".into() };
+        let d = PidOnly(pid.clone());
+        assert_eq!(export(Format::MarlinPid, &d, "n").expect("m301"), marlin_pid(&pid, "n").expect("m301"));
+        assert_eq!(export(Format::KlipperPid, &d, "n").expect("klipper"), klipper_pid(&pid, "n").expect("klipper"));
+        for f in [Format::MarlinMpc, Format::KlipperMpc, Format::Reprap] {
+            assert!(f.needs_physics());
+            assert!(export(f, &d, "n").expect_err("no rates").to_string().contains("no grey box"));
+        }
+        assert!(export(Format::CHeader, &d, "n").expect_err("no placement").to_string().contains("no placement"));
+        let names: Vec<&str> = Format::ALL.iter().map(|f| f.file_name()).collect();
+        assert_eq!(names, ["marlin-mpc.gcode", "klipper-mpc.cfg", "reprap.g", "marlin-pid.gcode", "klipper-pid.cfg", "thermal_gains.h"]);
     }
 }

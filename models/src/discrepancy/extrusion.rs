@@ -9,10 +9,11 @@
 //! winners are re-identified by simulation with K ([`identify`]).
 
 pub mod hidden;
+pub mod mismatch;
 pub mod plant;
 
 use super::simfit;
-use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
+use super::{Candidate, Domain, Outcome, Ranked, ValidSelectOptions};
 use crate::ModelError;
 pub use plant::ExtrusionParams;
 use serde::{Deserialize, Serialize};
@@ -322,6 +323,6 @@ impl Domain for ExtrusionDomain {
 }
 
 /// The workflow on extrusion data, from `model` if given, else from the base model.
-pub fn discrepancy(data: ExtrusionData, model: Option<ExtrusionModel>, opts: &SelectOptions) -> Result<Outcome<ExtrusionModel>, ModelError> {
+pub fn discrepancy(data: ExtrusionData, model: Option<ExtrusionModel>, opts: &ValidSelectOptions) -> Result<Outcome<ExtrusionModel>, ModelError> {
     super::run(&ExtrusionDomain::new(data)?, model, opts)
 }

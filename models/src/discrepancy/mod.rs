@@ -7,7 +7,7 @@
 //! holding its data, and exposes one function that the command calls:
 //!
 //! ```text
-//! pub fn discrepancy(data: …, model: Option<Model>, opts: &SelectOptions) -> Result<Outcome<Model>, ModelError>
+//! pub fn discrepancy(data: …, model: Option<Model>, opts: &ValidSelectOptions) -> Result<Outcome<Model>, ModelError>
 //! //   = super::run(&TheDomain::new(data)?, model, opts)
 //! ```
 //! Its model type is plain serde data. The domain supplies:
@@ -52,7 +52,9 @@
 pub mod extrusion;
 pub mod gate;
 pub mod hidden;
+pub mod mismatch;
 pub mod motion;
+pub mod ode;
 pub mod select;
 pub mod simfit;
 pub mod stats;
@@ -61,10 +63,46 @@ pub mod thermal_mismatch;
 
 use crate::{nonfinite, ModelError};
 pub use gate::{EffectParameter, Gate};
-pub use select::{Candidate, Ranked, SelectOptions, Selection};
+pub use select::{Candidate, Ranked, SelectOptions, Selection, ValidSelectOptions};
 use serde::{Deserialize, Serialize};
 use stats::{CrossCorrelation, Window};
 use std::collections::BTreeMap;
+
+/// The workflow's domains: the one list, read by serde (the spec's
+/// `[discrepancy] domain`, stored records, hidden-set answers) and by clap
+/// (`--domain`, with the `clap` feature). A new domain is a variant here, its
+/// [`Domain`] implementation and one arm of `fdmlab_pipeline::discrepancy::run`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum DomainName {
+    /// Hotend temperature (heat balance).
+    Thermal,
+    /// H-Bot axis position.
+    Motion,
+    /// Extruder flow/pressure.
+    Extrusion,
+}
+
+impl DomainName {
+    /// Every domain.
+    pub const ALL: [DomainName; 3] = [DomainName::Thermal, DomainName::Motion, DomainName::Extrusion];
+
+    /// Lower-case name (as serialised).
+    pub fn name(self) -> &'static str {
+        match self {
+            DomainName::Thermal => "thermal",
+            DomainName::Motion => "motion",
+            DomainName::Extrusion => "extrusion",
+        }
+    }
+}
+
+impl std::fmt::Display for DomainName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
 
 /// A domain the workflow can run on (see the module documentation).
 pub trait Domain {
@@ -269,8 +307,7 @@ fn cross(domain_inputs: &[(String, Vec<f64>)], r: &[f64]) -> Vec<CrossCorrelatio
 }
 
 /// Run the workflow on a domain: from `model` if given, else from the base model.
-pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions) -> Result<Outcome<D::Model>, ModelError> {
-    opts.check()?;
+pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOptions) -> Result<Outcome<D::Model>, ModelError> {
     let y = domain.measured();
     let time_s = domain.time_s();
     if y.len() != time_s.len() || y.len() < 10 {
@@ -294,8 +331,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
     let mut ambiguous: Vec<Vec<String>> = Vec::new();
     let mut excluded: Vec<String> = Vec::new();
     let mut ranking: Option<Vec<Ranked>> = None;
-    let round = SelectOptions { max_effects: 1, ..*opts };
-    while effects.len() < opts.max_effects {
+    let round = opts.one_effect();
+    while effects.len() < opts.max_effects() {
         let candidates: Vec<Candidate> = domain.candidates(&current).into_iter().filter(|c| !excluded.contains(&c.name)).collect();
         if candidates.is_empty() {
             break;
@@ -312,7 +349,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
             // their parameter (a lag and a dead time look alike there) the runner-ups
             // within RIVAL_ERR of the winner that pass the same test are refitted too,
             // and the nonlinear refit's BIC decides.
-            let bar = opts.alpha / sel.ranking.len().max(1) as f64;
+            let bar = opts.alpha() / sel.ranking.len().max(1) as f64;
             let contenders: Vec<&Ranked> = std::iter::once(best)
                 .chain(sel.ranking.iter().filter(|r| {
                     r.name != best.name
@@ -366,7 +403,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
     // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
     // beside them already) is refitted alone on the starting model and joined to the
     // named ones; the best join is kept if its BIC falls.
-    if !effects.is_empty() && effects.len() < opts.max_effects && !stats::windows(&r_cur, sigma, &time_s).is_empty() {
+    if !effects.is_empty() && effects.len() < opts.max_effects() && !stats::windows(&r_cur, sigma, &time_s).is_empty() {
         let best = ranking
             .iter()
             .flatten()
@@ -390,7 +427,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &SelectOptions)
     let mut not_significant = Vec::new();
     while !effects.is_empty() {
         let names: Vec<String> = effects.iter().map(|e| e.name.clone()).collect();
-        let gates = gate::check(domain, &current, &names, &y, sigma, opts.alpha);
+        let gates = gate::check(domain, &current, &names, &y, sigma, opts.alpha());
         let failing =
             gates.iter().enumerate().filter(|(_, g)| !g.passed()).min_by(|a, b| a.1.contribution_rms.total_cmp(&b.1.contribution_rms)).map(|(i, _)| i);
         let Some(i) = failing else {

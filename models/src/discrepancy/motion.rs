@@ -16,7 +16,7 @@ pub mod axis;
 pub mod hidden;
 
 use super::simfit;
-use super::{Candidate, Domain, Outcome, Ranked, SelectOptions};
+use super::{Candidate, Domain, Outcome, Ranked, ValidSelectOptions};
 use crate::hbot::ident::Axis;
 use crate::hbot::HbotParams;
 use crate::ModelError;
@@ -591,7 +591,7 @@ impl Domain for MotionDomain {
 }
 
 /// The workflow on motion data, from `model` if given, else from the base model.
-pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &SelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
+pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &ValidSelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
     super::run(&MotionDomain::new(data)?, model, opts)
 }
 

@@ -31,7 +31,28 @@ pub struct Candidate {
     pub column_names: Vec<String>,
 }
 
-/// Selection options. Defaults: `max_effects` 3, `alpha` 0.01, `collinearity` 0.98.
+/// Most effects one run may add: the largest effect library (thermal's seven,
+/// [`super::thermal::EFFECTS`]).
+pub const MAX_EFFECTS: usize = 7;
+/// Upper bound (excluded) of the family-wise significance level: a test at
+/// 0.5 or above names noise as often as not.
+pub const MAX_ALPHA: f64 = 0.5;
+/// Lower bound (excluded) of the ambiguity correlation: at or below 0.5 two
+/// effects sharing less than a quarter of their variance would be "ambiguous".
+pub const MIN_COLLINEARITY: f64 = 0.5;
+
+/// Unchecked selection options; [`SelectOptions::check`] gives the
+/// [`ValidSelectOptions`] the workflow takes (linfa's `ParamGuard`, as
+/// `nets::TrainParams`). The CLI flags (`fdmlab discrepancy --max-effects
+/// --alpha --collinearity`) and the spec keys (`[discrepancy] max_effects,
+/// alpha, collinearity`) both build one and check it; there is no other copy
+/// of these limits (listed in `docs/limits.md`):
+///
+/// | field | default | limits |
+/// |---|---|---|
+/// | `max_effects` | 3 | 1–7 ([`MAX_EFFECTS`]) |
+/// | `alpha` | 0.01 | (0, 0.5) ([`MAX_ALPHA`]) |
+/// | `collinearity` | 0.98 | (0.5, 1] ([`MIN_COLLINEARITY`]) |
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SelectOptions {
@@ -51,15 +72,60 @@ impl Default for SelectOptions {
 }
 
 impl SelectOptions {
-    /// Check ranges: `alpha` in (0, 1), `collinearity` in (0, 1].
-    pub fn check(&self) -> Result<(), ModelError> {
-        if !(self.alpha > 0.0 && self.alpha < 1.0) {
-            return Err(ModelError::invalid("alpha", self.alpha, "must be within (0, 1)"));
+    /// Validate against the limits of the table above; the error names the field.
+    pub fn check(self) -> Result<ValidSelectOptions, ModelError> {
+        if !(1..=MAX_EFFECTS).contains(&self.max_effects) {
+            return Err(ModelError::invalid("max_effects", self.max_effects, &format!("must be within 1–{MAX_EFFECTS}")));
         }
-        if !(self.collinearity > 0.0 && self.collinearity <= 1.0) {
-            return Err(ModelError::invalid("collinearity", self.collinearity, "must be within (0, 1]"));
+        if !(self.alpha > 0.0 && self.alpha < MAX_ALPHA) {
+            return Err(ModelError::invalid("alpha", self.alpha, &format!("must be within (0, {MAX_ALPHA})")));
         }
-        Ok(())
+        if !(self.collinearity > MIN_COLLINEARITY && self.collinearity <= 1.0) {
+            return Err(ModelError::invalid("collinearity", self.collinearity, &format!("must be within ({MIN_COLLINEARITY}, 1]")));
+        }
+        Ok(ValidSelectOptions(self))
+    }
+}
+
+/// Checked selection options: the only form [`select`] and the workflow take.
+/// Serialises exactly as [`SelectOptions`]; deserialising re-checks.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(into = "SelectOptions", try_from = "SelectOptions")]
+pub struct ValidSelectOptions(SelectOptions);
+
+impl Default for ValidSelectOptions {
+    /// The defaults of the table (within every limit).
+    fn default() -> Self {
+        ValidSelectOptions(SelectOptions::default())
+    }
+}
+
+impl From<ValidSelectOptions> for SelectOptions {
+    fn from(v: ValidSelectOptions) -> SelectOptions {
+        v.0
+    }
+}
+
+impl TryFrom<SelectOptions> for ValidSelectOptions {
+    type Error = ModelError;
+    fn try_from(o: SelectOptions) -> Result<Self, ModelError> {
+        o.check()
+    }
+}
+
+impl ValidSelectOptions {
+    pub fn max_effects(&self) -> usize {
+        self.0.max_effects
+    }
+    pub fn alpha(&self) -> f64 {
+        self.0.alpha
+    }
+    pub fn collinearity(&self) -> f64 {
+        self.0.collinearity
+    }
+    /// The same options choosing one effect per call (1 is within every limit).
+    pub(crate) fn one_effect(&self) -> ValidSelectOptions {
+        ValidSelectOptions(SelectOptions { max_effects: 1, ..self.0 })
     }
 }
 
@@ -191,8 +257,7 @@ struct Score {
 /// Forward selection of the effects that explain `target` (typically the
 /// residual of a base model) beyond the `base` columns (the base model's own
 /// parameter sensitivities, refitted with every effect).
-pub fn select(target: &[f64], base: &[Vec<f64>], candidates: &[Candidate], opts: &SelectOptions) -> Result<Selection, ModelError> {
-    opts.check()?;
+pub fn select(target: &[f64], base: &[Vec<f64>], candidates: &[Candidate], opts: &ValidSelectOptions) -> Result<Selection, ModelError> {
     check_shapes(target, base, candidates)?;
     let n = target.len() as f64;
     let energy = dot(target, target).max(f64::MIN_POSITIVE);
@@ -203,7 +268,7 @@ pub fn select(target: &[f64], base: &[Vec<f64>], candidates: &[Candidate], opts:
     let mut chosen_cols: Vec<&Vec<f64>> = base.iter().collect();
     let mut out = Selection::default();
     let mut first = true;
-    while !in_play.is_empty() && out.chosen.len() < opts.max_effects {
+    while !in_play.is_empty() && out.chosen.len() < opts.max_effects() {
         let scores: Vec<Score> = in_play
             .iter()
             .map(|&idx| {
@@ -265,12 +330,12 @@ pub fn select(target: &[f64], base: &[Vec<f64>], candidates: &[Candidate], opts:
         }
         let best = order[0];
         let r = &ranked[best];
-        let significant = r.err > 0.0 && r.p_value < opts.alpha / in_play.len() as f64 && r.delta_bic < 0.0;
+        let significant = r.err > 0.0 && r.p_value < opts.alpha() / in_play.len() as f64 && r.delta_bic < 0.0;
         if !significant {
             break;
         }
         // Candidates whose base-orthogonal part is nearly parallel to the winner's.
-        let rivals: Vec<usize> = order[1..].iter().copied().filter(|&i| canonical_correlation(&scores[best].w, &scores[i].w) > opts.collinearity).collect();
+        let rivals: Vec<usize> = order[1..].iter().copied().filter(|&i| canonical_correlation(&scores[best].w, &scores[i].w) > opts.collinearity()).collect();
         if rivals.is_empty() {
             for u in &scores[best].w {
                 let c = dot(u, &e);
@@ -308,6 +373,32 @@ mod tests {
     use rand::Rng as _;
     use rand_distr::{Distribution, Normal};
 
+    #[test]
+    fn the_limits_table_states_the_constants_and_check_enforces_them() {
+        let src = include_str!("select.rs");
+        for row in [format!("| 1–{MAX_EFFECTS} ("), format!("| (0, {MAX_ALPHA}) ("), format!("| ({MIN_COLLINEARITY}, 1] (")] {
+            assert!(src.contains(&row), "{row}");
+        }
+        let ok = |o: SelectOptions| o.check().is_ok();
+        let d = SelectOptions::default();
+        assert!(ok(d) && ok(SelectOptions { max_effects: MAX_EFFECTS, ..d }) && ok(SelectOptions { collinearity: 1.0, ..d }));
+        for bad in [
+            SelectOptions { max_effects: 0, ..d },
+            SelectOptions { max_effects: MAX_EFFECTS + 1, ..d },
+            SelectOptions { alpha: 0.0, ..d },
+            SelectOptions { alpha: MAX_ALPHA, ..d },
+            SelectOptions { alpha: f64::NAN, ..d },
+            SelectOptions { collinearity: MIN_COLLINEARITY, ..d },
+            SelectOptions { collinearity: 1.01, ..d },
+        ] {
+            assert!(!ok(bad), "{bad:?}");
+        }
+        // Serialised as the unchecked form; read back re-checked.
+        let json = serde_json::to_string(&ValidSelectOptions::default()).expect("json");
+        assert_eq!(json, r#"{"max_effects":3,"alpha":0.01,"collinearity":0.98}"#);
+        assert!(serde_json::from_str::<ValidSelectOptions>(&json.replace("0.01", "0.7")).is_err());
+    }
+
     fn data(n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
         let mut r = rng::seeded(seed, 0);
         let cols: Vec<Vec<f64>> = (0..5).map(|_| (0..n).map(|_| r.random_range(-1.0..1.0)).collect()).collect();
@@ -327,7 +418,7 @@ mod tests {
         // target = 0.5 + 2·c1 − 0.7·c3 + noise; base = [1, c0].
         let target: Vec<f64> = (0..2000).map(|k| 0.5 + 2.0 * c[1][k] - 0.7 * c[3][k] + noise[k]).collect();
         let cands: Vec<Candidate> = (1..5).map(|j| cand(&format!("e{j}"), &c[j])).collect();
-        let s = select(&target, &[ones, c[0].clone()], &cands, &SelectOptions::default()).expect("select");
+        let s = select(&target, &[ones, c[0].clone()], &cands, &ValidSelectOptions::default()).expect("select");
         let names: Vec<&str> = s.chosen.iter().map(|r| r.name.as_str()).collect();
         assert_eq!(names, ["e1", "e3"]);
         // Coefficients of an OLS fit with σ = 0.1 over 2000 uniform(−1,1) samples: s.e. ≈ 0.004.
@@ -342,7 +433,7 @@ mod tests {
         for seed in 0..40 {
             let (c, noise) = data(500, 100 + seed);
             let cands: Vec<Candidate> = (0..5).map(|j| cand(&format!("e{j}"), &c[j])).collect();
-            let s = select(&noise, &[vec![1.0; 500]], &cands, &SelectOptions::default()).expect("select");
+            let s = select(&noise, &[vec![1.0; 500]], &cands, &ValidSelectOptions::default()).expect("select");
             false_hits += usize::from(!s.chosen.is_empty());
         }
         // Family-wise α = 1 %: P(≥ 3 hits in 40) ≈ 0.8 %.
@@ -355,7 +446,7 @@ mod tests {
         let twin: Vec<f64> = c[1].iter().zip(&c[2]).map(|(a, b)| a + 0.01 * b).collect();
         let target: Vec<f64> = (0..1000).map(|k| c[1][k] + c[4][k] + noise[k]).collect();
         let cands = vec![cand("a", &c[1]), cand("a_twin", &twin), cand("d", &c[4])];
-        let s = select(&target, &[vec![1.0; 1000]], &cands, &SelectOptions::default()).expect("select");
+        let s = select(&target, &[vec![1.0; 1000]], &cands, &ValidSelectOptions::default()).expect("select");
         assert_eq!(s.ambiguous.len(), 1);
         let mut g = s.ambiguous[0].clone();
         g.sort();
@@ -367,13 +458,13 @@ mod tests {
     fn a_candidate_inside_the_base_span_scores_zero() {
         let (c, noise) = data(300, 3);
         let target: Vec<f64> = (0..300).map(|k| c[0][k] + noise[k]).collect();
-        let s = select(&target, std::slice::from_ref(&c[0]), &[cand("dup", &c[0])], &SelectOptions::default()).expect("select");
+        let s = select(&target, std::slice::from_ref(&c[0]), &[cand("dup", &c[0])], &ValidSelectOptions::default()).expect("select");
         assert!(s.chosen.is_empty() && s.ranking[0].err == 0.0 && s.ranking[0].p_value == 1.0);
     }
 
     #[test]
     fn ragged_columns_are_refused() {
-        let err = select(&[0.0; 20], &[], &[cand("x", &[1.0; 19])], &SelectOptions::default()).expect_err("shape");
+        let err = select(&[0.0; 20], &[], &[cand("x", &[1.0; 19])], &ValidSelectOptions::default()).expect_err("shape");
         assert!(err.to_string().contains("candidate x"), "{err}");
     }
 }

@@ -554,7 +554,11 @@ impl Domain for ThermalData {
 }
 
 /// Run the workflow on thermal data (see [`super::run`]).
-pub fn discrepancy(segments: Vec<Experiment>, model: Option<ThermalModel>, opts: &super::SelectOptions) -> Result<super::Outcome<ThermalModel>, ModelError> {
+pub fn discrepancy(
+    segments: Vec<Experiment>,
+    model: Option<ThermalModel>,
+    opts: &super::ValidSelectOptions,
+) -> Result<super::Outcome<ThermalModel>, ModelError> {
     if let Some(m) = &model {
         m.check()?;
     }

@@ -32,6 +32,8 @@
 //! unexplained and name no wrong effect. Every base parameter is drawn within ±30 %
 //! of its nominal value per case ([`MismatchOptions::spread`]).
 
+use super::mismatch;
+use super::ode::dormand_prince;
 use super::stats;
 use super::thermal::ThermalData;
 use super::Domain;
@@ -167,84 +169,8 @@ impl Plant {
     }
 }
 
-/// Dormand–Prince 5(4) coefficients (Hairer, Nørsett & Wanner, Table II.5.2).
-const C: [f64; 7] = [0.0, 0.2, 0.3, 0.8, 8.0 / 9.0, 1.0, 1.0];
-const A: [[f64; 6]; 7] = [
-    [0.0; 6],
-    [0.2, 0.0, 0.0, 0.0, 0.0, 0.0],
-    [3.0 / 40.0, 9.0 / 40.0, 0.0, 0.0, 0.0, 0.0],
-    [44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0, 0.0, 0.0, 0.0],
-    [19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0, 0.0, 0.0],
-    [9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0, 0.0],
-    [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0],
-];
-/// Fifth-order weights (the last row of A) and the fourth-order embedded ones.
-const B5: [f64; 7] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0];
-const B4: [f64; 7] = [5179.0 / 57600.0, 0.0, 7571.0 / 16695.0, 393.0 / 640.0, -92097.0 / 339200.0, 187.0 / 2100.0, 1.0 / 40.0];
-
-/// Integrate `dx/dt = f(t, x)` from `t0` to `t1` with error control (relative and
-/// absolute tolerance 1e-9 per step); `h` carries the step size between calls.
-pub fn dormand_prince(f: impl Fn(f64, [f64; 2]) -> [f64; 2], mut x: [f64; 2], t0: f64, t1: f64, h: &mut f64) -> [f64; 2] {
-    const TOL: f64 = 1e-9;
-    let mut t = t0;
-    while t < t1 - 1e-12 {
-        let step = h.min(t1 - t);
-        let mut k = [[0.0; 2]; 7];
-        for s in 0..7 {
-            let mut xs = x;
-            for (j, kj) in k.iter().enumerate().take(s) {
-                for i in 0..2 {
-                    xs[i] += step * A[s][j] * kj[i];
-                }
-            }
-            k[s] = f(t + C[s] * step, xs);
-        }
-        let mut x5 = x;
-        let mut err: f64 = 0.0;
-        for i in 0..2 {
-            let (mut d5, mut d4) = (0.0, 0.0);
-            for s in 0..7 {
-                d5 += B5[s] * k[s][i];
-                d4 += B4[s] * k[s][i];
-            }
-            x5[i] += step * d5;
-            let scale = TOL + TOL * x[i].abs().max(x5[i].abs());
-            err = err.max((step * (d5 - d4)).abs() / scale);
-        }
-        if err <= 1.0 {
-            t += step;
-            x = x5;
-        }
-        // Standard controller: factor 0.9·err^(−1/5), limited to 0.2..5.
-        let factor = if err > 0.0 { (0.9 * err.powf(-0.2)).clamp(0.2, 5.0) } else { 5.0 };
-        *h = (step * factor).max(1e-6);
-    }
-    x
-}
-
 /// One case's answer (written to `answers.json` only).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MismatchAnswer {
-    /// Case id (the generator's order and what it holds).
-    pub id: String,
-    /// Library effects whose contribution exceeds 3× the noise: the right names.
-    pub effects: Vec<String>,
-    /// An effect outside the library, if any.
-    pub outside: Option<String>,
-    /// Whether every feature is clearly on (> 3σ) or off (< 1σ), so the case is graded.
-    pub graded: bool,
-    /// Per library feature and outside effect: RMS the heater-only model cannot absorb, °C.
-    pub contribution: BTreeMap<String, f64>,
-    /// The plant (the twin).
-    pub plant: Plant,
-    /// Noise σ, °C.
-    pub noise_c: f64,
-    /// Seed of the case's draws.
-    pub seed: u64,
-    /// [`GENERATOR`].
-    pub generator: String,
-}
+pub type MismatchAnswer = super::mismatch::MismatchAnswer<Plant>;
 
 /// One generated case.
 #[derive(Debug, Clone)]
@@ -359,42 +285,20 @@ fn contribution(p: &Plant, drives: &Experiment, feature: &str) -> Result<f64, Mo
     }
     let with = unabsorbed(drives, &alone.simulate(drives))?;
     let floor = unabsorbed(drives, &floor_plant.simulate(drives))?;
-    Ok((with * with - floor * floor).max(0.0).sqrt())
+    Ok(mismatch::above_floor(with, floor))
 }
 
-/// One planned case: features on with their magnitudes, outside effect, noise, replicate.
-type Planned = (Vec<(&'static str, f64)>, Option<(&'static str, f64)>, f64, u64);
-
-/// Generate the set: per noise level the effect-free cases, every feature at two
-/// magnitudes, every outside effect at two magnitudes, `replicates` of each; plus
-/// two pairs (fan + sensor lag, fan + radiation) at the first noise level.
+/// Generate the set ([`mismatch::plan`]): per noise level the effect-free cases, every
+/// feature at two magnitudes, every outside effect at two magnitudes, `replicates` of
+/// each; plus two pairs (fan + sensor lag, fan + radiation) at the first noise level.
 pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError> {
     if opts.samples < 300 || !(0.0..0.9).contains(&opts.spread) || opts.noise_c.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
         return Err(ModelError::invalid("mismatch options", format!("{opts:?}"), "need ≥ 300 samples, spread in [0, 0.9), noise > 0"));
     }
-    let mut plan: Vec<Planned> = Vec::new();
-    for &sigma in &opts.noise_c {
-        for rep in 0..opts.replicates as u64 {
-            for s in 0..opts.null_cases as u64 {
-                plan.push((Vec::new(), None, sigma, rep * 100 + s));
-            }
-            for f in FEATURES {
-                for m in magnitudes(f) {
-                    plan.push((vec![(f, m)], None, sigma, rep));
-                }
-            }
-            for o in OUTSIDE {
-                for m in magnitudes(o) {
-                    plan.push((Vec::new(), Some((o, m)), sigma, rep));
-                }
-            }
-        }
-    }
-    let sigma0 = opts.noise_c[0];
-    plan.push((vec![("fan_cooling", 0.1), ("sensor_lag", 12.0)], None, sigma0, 0));
-    plan.push((vec![("fan_cooling", 0.1), ("radiation", 0.9 * 1.6e-3)], None, sigma0, 0));
-    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, (on, outside, sigma, _rep))| {
-        let seed = opts.seed.wrapping_mul(0x9E37_79B9).wrapping_add(*i as u64 * 104_729);
+    let pairs = [[("fan_cooling", 0.1), ("sensor_lag", 12.0)], [("fan_cooling", 0.1), ("radiation", 0.9 * 1.6e-3)]];
+    let plan = mismatch::plan(&FEATURES, &OUTSIDE, magnitudes, &opts.noise_c, opts.replicates, opts.null_cases, &pairs);
+    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, planned)| {
+        let seed = mismatch::case_seed(opts.seed, *i);
         let mut r = rng::seeded(seed, 401);
         let mut jitter = |v: f64| v * (1.0 + opts.spread * r.random_range(-1.0..=1.0));
         let nominal = Plant::nominal();
@@ -407,34 +311,21 @@ pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError>
             ambient_c: 18.0 + 10.0 * r.random_range(0.0..1.0),
             ..nominal
         };
-        for (f, m) in on.iter().chain(outside.iter()) {
+        for (f, m) in planned.on.iter().chain(planned.outside.iter()) {
             set(&mut plant, f, *m);
         }
         let mut data = drives(opts.samples, plant.ambient_c, seed);
         let clean = plant.simulate(&data);
-        let normal = Normal::new(0.0, *sigma).map_err(|e| ModelError::invalid("noise_c", sigma, &e.to_string()))?;
+        let sigma = planned.noise;
+        let normal = Normal::new(0.0, sigma).map_err(|e| ModelError::invalid("noise_c", sigma, &e.to_string()))?;
         let mut nr = rng::seeded(seed, 402);
         data.temperature_c = clean.iter().map(|t| ((t + normal.sample(&mut nr)) / 0.1).round() * 0.1).collect();
         let mut contrib = BTreeMap::new();
-        for f in FEATURES.iter().chain(outside.iter().map(|(o, _)| o)) {
+        for f in FEATURES.iter().chain(planned.outside.iter().map(|(o, _)| o)) {
             contrib.insert(f.to_string(), contribution(&plant, &data, f)?);
         }
-        let effects: Vec<String> = FEATURES.iter().filter(|f| contrib[**f] > 3.0 * sigma).map(|f| f.to_string()).collect();
-        let graded = FEATURES.iter().all(|f| contrib[*f] > 3.0 * sigma || contrib[*f] < *sigma) && outside.is_none_or(|(o, _)| contrib[o] > 3.0 * sigma);
-        let label = on.iter().map(|(f, _)| *f).chain(outside.iter().map(|(o, _)| *o)).collect::<Vec<_>>().join("+");
-        let id = format!("{}-{i:03}", if label.is_empty() { "none" } else { &label });
         data.name = format!("case-{i:03}");
-        let answer = MismatchAnswer {
-            id,
-            effects,
-            outside: outside.map(|(o, _)| o.to_string()),
-            graded,
-            contribution: contrib,
-            plant,
-            noise_c: *sigma,
-            seed,
-            generator: GENERATOR.to_string(),
-        };
+        let answer = MismatchAnswer::new(*i, planned, &FEATURES, contrib, plant, seed, GENERATOR);
         Ok(MismatchCase { data, answer })
     })
     .into_iter()
@@ -444,14 +335,6 @@ pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError>
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn dormand_prince_integrates_an_exponential_to_its_tolerance() {
-        // dx/dt = −x/τ, x(0) = 1 over 10 s with τ = 3: x = e^{−10/3}.
-        let mut h = 0.1;
-        let x = dormand_prince(|_, x| [-x[0] / 3.0, -2.0 * x[1]], [1.0, 1.0], 0.0, 10.0, &mut h);
-        assert!((x[0] - (-10.0f64 / 3.0).exp()).abs() < 1e-8 && (x[1] - (-20.0f64).exp()).abs() < 1e-9, "{x:?}");
-    }
 
     #[test]
     fn the_plant_settles_where_heat_in_equals_heat_out() {

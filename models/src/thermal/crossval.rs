@@ -7,6 +7,16 @@ use crate::ModelError;
 use serde::{Deserialize, Serialize};
 
 /// The model × experiment table.
+/// An identified model with where it came from (`set1/arx-3`, `all/greybox-2`)
+/// and its fit on its own data, %: what the `thermal-grid` kind's `identify`
+/// stage stores and its cross-validation and report read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Entry {
+    pub label: String,
+    pub model: ThermalModel,
+    pub own_fit_percent: f64,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CrossValidation {
     /// Row labels (model label and what it was fitted on).

@@ -2,7 +2,7 @@
 //!
 //! The task (issue #12 §3): after reading junction `i` (moves `0..=i + 1`, earlier
 //! layers included) predict, for the target junction `t = i + H`, its turn angle
-//! and whether a corner (turn above `corner_deg`) lies within `window_mm` of path
+//! and whether a corner (turn above `corner_deg`) lies within `corner_window_mm` of path
 //! from it ([`corner_label`]). Every baseline returns one [`Prediction`] per `i` in
 //! `0..n − H`, so prediction `i` is about junction `i + H` and uses only
 //! junctions `0..=i` (a junction's turn needs the move after it).
@@ -11,27 +11,33 @@ use std::collections::{BinaryHeap, HashMap};
 
 use serde::{Deserialize, Serialize};
 
-use super::features::heading_diff;
+use super::features::{heading_diff, Task, CORNER_DEG};
 use super::Junction;
 use crate::discrepancy::stats::median;
 use crate::ModelError;
 
-/// The prediction task.
+/// The prediction task at one horizon, made from [`Task`] (the one owner of
+/// the task's settings) for each of its horizons ([`HorizonTask::of`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Task {
+pub struct HorizonTask {
     /// Junctions between the last one read and the target, H ≥ 1.
     pub horizon: usize,
     /// Turn above which a junction is a corner, degrees.
     pub corner_deg: f64,
     /// Path length from the target within which a corner counts, mm.
-    pub window_mm: f64,
+    pub corner_window_mm: f64,
 }
 
-impl Task {
-    /// H junctions ahead, corners above 45° within 10 mm.
+impl HorizonTask {
+    /// `task` at horizon `h`: corners above [`CORNER_DEG`] within its corner window.
+    pub fn of(task: &Task, h: usize) -> Self {
+        HorizonTask { horizon: h, corner_deg: CORNER_DEG, corner_window_mm: task.corner_window_mm }
+    }
+
+    /// H junctions ahead with the default task's corner rule (above 45° within 10 mm).
     pub fn new(horizon: usize) -> Self {
-        Task { horizon, corner_deg: 45.0, window_mm: 10.0 }
+        HorizonTask::of(&Task::default(), horizon)
     }
 
     /// Validate the task.
@@ -42,8 +48,8 @@ impl Task {
         if !(self.corner_deg.is_finite() && (0.0..180.0).contains(&self.corner_deg)) {
             return Err(ModelError::invalid("corner_deg", self.corner_deg, "must be in [0, 180)"));
         }
-        if !(self.window_mm.is_finite() && self.window_mm >= 0.0) {
-            return Err(ModelError::invalid("window_mm", self.window_mm, "must be a number ≥ 0"));
+        if !(self.corner_window_mm.is_finite() && self.corner_window_mm >= 0.0) {
+            return Err(ModelError::invalid("corner_window_mm", self.corner_window_mm, "must be a number ≥ 0"));
         }
         Ok(self)
     }
@@ -64,35 +70,35 @@ pub struct Prediction {
 }
 
 /// True when a junction turning more than `corner_deg` lies at or after junction
-/// `t` within `window_mm` of path from it, among junctions `..=last`.
-pub fn corner_label(j: &[Junction], t: usize, last: usize, task: &Task) -> bool {
+/// `t` within `corner_window_mm` of path from it, among junctions `..=last`.
+pub fn corner_label(j: &[Junction], t: usize, last: usize, task: &HorizonTask) -> bool {
     let Some(start) = j.get(t) else {
         return false;
     };
-    j[t..=last.min(j.len() - 1).max(t)].iter().take_while(|k| k.dist_mm - start.dist_mm <= task.window_mm).any(|k| k.turn_deg > task.corner_deg)
+    j[t..=last.min(j.len() - 1).max(t)].iter().take_while(|k| k.dist_mm - start.dist_mm <= task.corner_window_mm).any(|k| k.turn_deg > task.corner_deg)
 }
 
 /// Truth of the task: the target's turn and corner label for every `i`.
-pub fn targets(j: &[Junction], task: &Task) -> Vec<(f64, bool)> {
+pub fn targets(j: &[Junction], task: &HorizonTask) -> Vec<(f64, bool)> {
     let last = j.len().saturating_sub(1);
     (0..task.count(j.len())).map(|i| (j[i + task.horizon].turn_deg, corner_label(j, i + task.horizon, last, task))).collect()
 }
 
 /// "No turn": the path goes straight on.
-pub fn no_turn(j: &[Junction], task: &Task) -> Vec<Prediction> {
+pub fn no_turn(j: &[Junction], task: &HorizonTask) -> Vec<Prediction> {
     vec![Prediction { angle_deg: 0.0, corner_prob: 0.0 }; task.count(j.len())]
 }
 
 /// "Last turn repeats": the target turns as junction `i` did, and a corner is as
-/// likely as one was in the last `window_mm` read.
-pub fn last_turn(j: &[Junction], task: &Task) -> Vec<Prediction> {
+/// likely as one was in the last `corner_window_mm` read.
+pub fn last_turn(j: &[Junction], task: &HorizonTask) -> Vec<Prediction> {
     let mut out = Vec::with_capacity(task.count(j.len()));
     let mut recent_corners = std::collections::VecDeque::new();
     for ji in j.iter().take(task.count(j.len())) {
         if ji.turn_deg > task.corner_deg {
             recent_corners.push_back(ji.dist_mm);
         }
-        while recent_corners.front().is_some_and(|d| ji.dist_mm - d > task.window_mm) {
+        while recent_corners.front().is_some_and(|d| ji.dist_mm - d > task.corner_window_mm) {
             recent_corners.pop_front();
         }
         out.push(Prediction { angle_deg: ji.turn_deg, corner_prob: if recent_corners.is_empty() { 0.0 } else { 1.0 } });
@@ -105,7 +111,7 @@ pub fn last_turn(j: &[Junction], task: &Task) -> Vec<Prediction> {
 /// knows exactly; beyond, it plans a full stop after its newest block, which at
 /// a junction means speed zero — the limit of a 180° reversal — so it predicts
 /// 180° and a certain corner.
-pub fn planner(j: &[Junction], task: &Task, known_ahead: usize) -> Vec<Prediction> {
+pub fn planner(j: &[Junction], task: &HorizonTask, known_ahead: usize) -> Vec<Prediction> {
     let last = j.len().saturating_sub(1);
     (0..task.count(j.len()))
         .map(|i| {
@@ -162,7 +168,12 @@ impl LayerGrid {
             for gy in cy - reach..=cy + reach {
                 for &idx in self.cells.get(&(gx, gy)).into_iter().flatten() {
                     let c = &j[idx];
-                    let d = (c.x - x).hypot(c.y - y);
+                    let (ex, ey) = (c.x - x, c.y - y);
+                    // Well outside the radius: skip before the exact (and slow) hypot.
+                    if ex * ex + ey * ey > p.max_dist_mm * p.max_dist_mm * (1.0 + 1e-9) {
+                        continue;
+                    }
+                    let d = ex.hypot(ey);
                     if d <= p.max_dist_mm && heading_diff(c.heading_deg, heading) <= p.heading_tol_deg && best.is_none_or(|(bd, bi)| (d, idx) < (bd, bi)) {
                         best = Some((d, idx));
                     }
@@ -195,7 +206,7 @@ pub fn previous_layer_matches(j: &[Junction], count: usize, settings: &PreviousL
 /// What the path did `H` junctions on from each anchor's match (its turn and
 /// corner label over junctions read); "no turn" without a match or when `p + H`
 /// has not been read yet.
-fn read_on(j: &[Junction], task: &Task, matches: &[Option<usize>]) -> Vec<Prediction> {
+fn read_on(j: &[Junction], task: &HorizonTask, matches: &[Option<usize>]) -> Vec<Prediction> {
     (0..task.count(j.len()))
         .map(|i| match matches[i].map(|p| p + task.horizon).filter(|&t| t <= i) {
             Some(t) => Prediction { angle_deg: j[t].turn_deg, corner_prob: if corner_label(j, t, i, task) { 1.0 } else { 0.0 } },
@@ -208,7 +219,7 @@ fn read_on(j: &[Junction], task: &Task, matches: &[Option<usize>]) -> Vec<Predic
 /// layer with a similar heading to junction `i`; predict what the path did `H`
 /// junctions on from `p`. Falls back to "no turn" without a match (or when
 /// `p + H` has not been read yet).
-pub fn previous_layer(j: &[Junction], task: &Task, settings: &PreviousLayer) -> Vec<Prediction> {
+pub fn previous_layer(j: &[Junction], task: &HorizonTask, settings: &PreviousLayer) -> Vec<Prediction> {
     read_on(j, task, &previous_layer_matches(j, task.count(j.len()), settings))
 }
 
@@ -231,7 +242,7 @@ pub struct PreviousLayerTrial {
 /// [`PREVIOUS_LAYER_RADII_MM`] × tolerance of [`PREVIOUS_LAYER_TOLERANCES_DEG`],
 /// scored by angle MAE over every horizon of `tasks`; the lowest wins (the
 /// first in grid order among equals). Returns the winner and every trial.
-pub fn tune_previous_layer(paths: &[&[Junction]], tasks: &[Task]) -> (PreviousLayer, Vec<PreviousLayerTrial>) {
+pub fn tune_previous_layer(paths: &[&[Junction]], tasks: &[HorizonTask]) -> (PreviousLayer, Vec<PreviousLayerTrial>) {
     let grid: Vec<PreviousLayer> = PREVIOUS_LAYER_RADII_MM
         .iter()
         .flat_map(|&max_dist_mm| PREVIOUS_LAYER_TOLERANCES_DEG.iter().map(move |&heading_tol_deg| PreviousLayer { heading_tol_deg, max_dist_mm }))
@@ -297,7 +308,7 @@ pub struct Knn {
 
 impl Knn {
     /// Fit on the junctions of training paths for one task.
-    pub fn fit(paths: &[&[Junction]], task: &Task, params: KnnParams) -> Result<Self, ModelError> {
+    pub fn fit(paths: &[&[Junction]], task: &HorizonTask, params: KnnParams) -> Result<Self, ModelError> {
         if params.k == 0 || params.history == 0 || params.max_refs == 0 {
             return Err(ModelError::invalid("knn", format!("{params:?}"), "k, history and max_refs must be at least 1"));
         }
@@ -333,19 +344,29 @@ impl Knn {
         self.angle.is_empty()
     }
 
-    /// Predict every target of a path; junctions without enough history get "no turn".
-    pub fn predict(&self, j: &[Junction], task: &Task) -> Vec<Prediction> {
-        (0..task.count(j.len()))
-            .map(|i| match history_features(j, i, self.params.history) {
-                Some(f) => {
-                    let nn = self.tree.nearest(&f, self.params.k);
-                    let n = nn.len().max(1) as f64;
-                    let mut angles: Vec<f64> = nn.iter().map(|&r| self.angle[r]).collect();
-                    Prediction { angle_deg: median(&mut angles), corner_prob: nn.iter().filter(|&&r| self.corner[r]).count() as f64 / n }
-                }
-                None => Prediction { angle_deg: 0.0, corner_prob: 0.0 },
+    /// Predict every target of a path; junctions without enough history get
+    /// "no turn". Histories repeat (regular infill, perimeters), so each
+    /// distinct one is searched once, on every core.
+    pub fn predict(&self, j: &[Junction], task: &HorizonTask) -> Vec<Prediction> {
+        let mut slot_of: HashMap<Vec<u64>, usize> = HashMap::new();
+        let mut queries: Vec<Vec<f64>> = vec![];
+        let slots: Vec<Option<usize>> = (0..task.count(j.len()))
+            .map(|i| {
+                history_features(j, i, self.params.history).map(|f| {
+                    *slot_of.entry(f.iter().map(|v| v.to_bits()).collect()).or_insert_with(|| {
+                        queries.push(f);
+                        queries.len() - 1
+                    })
+                })
             })
-            .collect()
+            .collect();
+        let answers = crate::parallel::par_map(&queries, |f| {
+            let nn = self.tree.nearest(f, self.params.k);
+            let n = nn.len().max(1) as f64;
+            let mut angles: Vec<f64> = nn.iter().map(|&r| self.angle[r]).collect();
+            Prediction { angle_deg: median(&mut angles), corner_prob: nn.iter().filter(|&&r| self.corner[r]).count() as f64 / n }
+        });
+        slots.into_iter().map(|s| s.map_or(Prediction { angle_deg: 0.0, corner_prob: 0.0 }, |s| answers[s])).collect()
     }
 }
 
@@ -353,15 +374,31 @@ impl Knn {
 /// 1977): median splits on the widest dimension, leaves of up to 16 points.
 #[derive(Debug, Clone)]
 struct KdTree {
-    points: Vec<Vec<f64>>,
+    /// Points, `dims` coordinates each, one after another.
+    points: Vec<f64>,
+    dims: usize,
     order: Vec<usize>,
     nodes: Vec<KdNode>,
 }
 
 #[derive(Debug, Clone, Copy)]
 enum KdNode {
-    Leaf { lo: usize, hi: usize },
-    Split { dim: usize, value: f64, left: usize, right: usize },
+    Leaf {
+        lo: usize,
+        hi: usize,
+    },
+    /// Points all equal (repeated histories): held in index order, so a search
+    /// stops at the first that cannot enter the heap.
+    Same {
+        lo: usize,
+        hi: usize,
+    },
+    Split {
+        dim: usize,
+        value: f64,
+        left: usize,
+        right: usize,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -383,7 +420,8 @@ impl Ord for Near {
 
 impl KdTree {
     fn build(points: Vec<Vec<f64>>) -> Self {
-        let mut t = KdTree { order: (0..points.len()).collect(), points, nodes: Vec::new() };
+        let dims = points.first().map_or(0, Vec::len);
+        let mut t = KdTree { order: (0..points.len()).collect(), points: points.concat(), dims, nodes: Vec::new() };
         let n = t.order.len();
         t.split(0, n);
         t
@@ -395,23 +433,25 @@ impl KdTree {
         if hi - lo <= 16 {
             return id;
         }
-        let dims = self.points[self.order[lo]].len();
+        let dims = self.dims;
         let spread = |d: usize| {
             let (mut mn, mut mx) = (f64::INFINITY, f64::NEG_INFINITY);
             for &o in &self.order[lo..hi] {
-                mn = mn.min(self.points[o][d]);
-                mx = mx.max(self.points[o][d]);
+                mn = mn.min(self.points[o * dims + d]);
+                mx = mx.max(self.points[o * dims + d]);
             }
             mx - mn
         };
         let (dim, width) = (0..dims).map(|d| (d, spread(d))).fold((0, -1.0), |b, c| if c.1 > b.1 { c } else { b });
         if width <= 0.0 {
-            return id; // all points equal: one leaf
+            self.order[lo..hi].sort_unstable();
+            self.nodes[id] = KdNode::Same { lo, hi };
+            return id;
         }
         let mid = (lo + hi) / 2;
         let pts = &self.points;
-        self.order[lo..hi].select_nth_unstable_by(mid - lo, |&a, &b| pts[a][dim].total_cmp(&pts[b][dim]).then(a.cmp(&b)));
-        let value = self.points[self.order[mid]][dim];
+        self.order[lo..hi].select_nth_unstable_by(mid - lo, |&a, &b| pts[a * dims + dim].total_cmp(&pts[b * dims + dim]).then(a.cmp(&b)));
+        let value = self.points[self.order[mid] * dims + dim];
         let left = self.split(lo, mid);
         let right = self.split(mid, hi);
         self.nodes[id] = KdNode::Split { dim, value, left, right };
@@ -422,33 +462,72 @@ impl KdTree {
     fn nearest(&self, q: &[f64], k: usize) -> Vec<usize> {
         let mut heap = BinaryHeap::with_capacity(k + 1);
         if !self.nodes.is_empty() {
-            self.search(0, q, k, &mut heap);
+            let mut off = vec![0.0; self.dims];
+            self.search(0, q, k, &mut heap, &mut off, 0.0);
         }
         let mut v = heap.into_sorted_vec();
         v.truncate(k);
         v.into_iter().map(|n| n.1).collect()
     }
 
-    fn search(&self, node: usize, q: &[f64], k: usize, heap: &mut BinaryHeap<Near>) {
+    /// Offer point `o` at squared distance `d`; false when it cannot enter.
+    fn offer(heap: &mut BinaryHeap<Near>, k: usize, d: f64, o: usize) -> bool {
+        let cand = Near(d, o);
+        if heap.len() < k {
+            heap.push(cand);
+        } else if heap.peek().is_some_and(|w| cand < *w) {
+            heap.pop();
+            heap.push(cand);
+        } else {
+            return false;
+        }
+        true
+    }
+
+    /// Search below `node`, whose cell lies `off[d]` from `q` along each
+    /// dimension, `rd` = Σ off² away (Arya and Mount 1993's incremental
+    /// distance): a cell farther than the k-th best so far is skipped. The
+    /// bound is relaxed by 1e-9 relative so rounding never skips a tie.
+    fn search(&self, node: usize, q: &[f64], k: usize, heap: &mut BinaryHeap<Near>, off: &mut [f64], rd: f64) {
+        let dims = self.dims;
         match self.nodes[node] {
             KdNode::Leaf { lo, hi } => {
                 for &o in &self.order[lo..hi] {
-                    let d: f64 = self.points[o].iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
-                    let cand = Near(d, o);
-                    if heap.len() < k {
-                        heap.push(cand);
-                    } else if heap.peek().is_some_and(|w| cand < *w) {
-                        heap.pop();
-                        heap.push(cand);
+                    let worst = if heap.len() < k { f64::INFINITY } else { heap.peek().map_or(f64::INFINITY, |w| w.0) };
+                    let p = &self.points[o * dims..(o + 1) * dims];
+                    let mut d = 0.0;
+                    let mut over = false;
+                    for (a, b) in p.iter().zip(q) {
+                        d += (a - b) * (a - b);
+                        if d > worst {
+                            over = true; // the sum only grows: it cannot enter
+                            break;
+                        }
+                    }
+                    if !over {
+                        Self::offer(heap, k, d, o);
+                    }
+                }
+            }
+            KdNode::Same { lo, hi } => {
+                let o = self.order[lo];
+                let d: f64 = self.points[o * dims..(o + 1) * dims].iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+                for &o in &self.order[lo..hi] {
+                    if !Self::offer(heap, k, d, o) {
+                        break; // the rest have the same distance and larger indices
                     }
                 }
             }
             KdNode::Split { dim, value, left, right } => {
                 let diff = q[dim] - value;
                 let (near, far) = if diff < 0.0 { (left, right) } else { (right, left) };
-                self.search(near, q, k, heap);
-                if heap.len() < k || heap.peek().is_some_and(|w| diff * diff <= w.0) {
-                    self.search(far, q, k, heap);
+                self.search(near, q, k, heap, off, rd);
+                let old = off[dim];
+                let far_rd = rd - old * old + diff * diff;
+                if heap.len() < k || heap.peek().is_some_and(|w| far_rd <= w.0 * (1.0 + 1e-9)) {
+                    off[dim] = diff;
+                    self.search(far, q, k, heap, off, far_rd);
+                    off[dim] = old;
                 }
             }
         }
@@ -481,15 +560,25 @@ pub fn score(truth: &[(f64, bool)], pred: &[Prediction]) -> Scores {
 /// F1 score of `score ≥ threshold` against `labels` (van Rijsbergen 1979):
 /// `2·TP / (2·TP + FP + FN)`; none when there is no positive label or prediction.
 pub fn f1(labels: &[bool], scores: &[f64], threshold: f64) -> Option<f64> {
-    let (mut tp, mut fp, mut fneg) = (0usize, 0usize, 0usize);
+    f1_of(confusion(labels, scores, threshold))
+}
+
+/// True positives, false positives and false negatives of `score ≥ threshold`.
+pub fn confusion(labels: &[bool], scores: &[f64], threshold: f64) -> [usize; 3] {
+    let mut c = [0usize; 3];
     for (&l, &s) in labels.iter().zip(scores) {
         match (l, s >= threshold) {
-            (true, true) => tp += 1,
-            (false, true) => fp += 1,
-            (true, false) => fneg += 1,
+            (true, true) => c[0] += 1,
+            (false, true) => c[1] += 1,
+            (true, false) => c[2] += 1,
             _ => {}
         }
     }
+    c
+}
+
+/// F1 of confusion counts `[TP, FP, FN]`; none when all are zero.
+pub fn f1_of([tp, fp, fneg]: [usize; 3]) -> Option<f64> {
     let denom = 2 * tp + fp + fneg;
     (denom > 0).then(|| 2.0 * tp as f64 / denom as f64)
 }
@@ -560,7 +649,7 @@ mod tests {
     #[test]
     fn corner_label_looks_window_mm_ahead() {
         let j = junctions(&stacked_squares(20, 1));
-        let task = Task::new(1);
+        let task = HorizonTask::new(1);
         // Corners end moves 19, 39, 59 (junction index = move index); the window is 10 mm.
         assert!(corner_label(&j, 19, j.len() - 1, &task));
         assert!(corner_label(&j, 9, j.len() - 1, &task)); // corner 10 mm ahead
@@ -573,7 +662,7 @@ mod tests {
         // Period 80 junctions, H = 16: junction i of layer ≥ 1 matches i − 80 exactly,
         // and i − 80 + 16 has been read, so the prediction is the truth.
         let j = junctions(&stacked_squares(20, 4));
-        let task = Task::new(16);
+        let task = HorizonTask::new(16);
         let truth = targets(&j, &task);
         let pred = previous_layer(&j, &task, &PreviousLayer::default());
         // (The last targets' windows run off the end of the path; stop before them.)
@@ -586,6 +675,70 @@ mod tests {
         assert!(pred[..80].iter().all(|p| p.angle_deg == 0.0));
         let s = score(&truth[80..end], &pred[80..end]);
         assert_eq!((s.angle_mae_deg, s.corner_f1, s.corner_auc), (0.0, Some(1.0), Some(1.0)));
+    }
+
+    /// An open five-point polyline repeated layer after layer, each layer the
+    /// previous one moved by `step` (rotation about the origin or a shift),
+    /// joined by the move from one layer's last point to the next one's first.
+    fn drifting_layers(layers: u32, step: impl Fn((f64, f64)) -> (f64, f64)) -> Vec<Move> {
+        let base: Vec<(f64, f64)> = [(4.0, 0.0), (5.5, 60.0), (4.5, 120.0), (5.0, 180.0), (4.2, 240.0)]
+            .iter()
+            .map(|&(r, deg): &(f64, f64)| (r * deg.to_radians().cos(), r * deg.to_radians().sin()))
+            .collect();
+        // One layer more, of which only the last point is kept: the start of
+        // layer 0's joining move, so every layer has the same five moves.
+        let mut layer_pts = vec![base];
+        for _ in 0..layers {
+            let next = layer_pts[layer_pts.len() - 1].iter().map(|&p| step(p)).collect();
+            layer_pts.push(next);
+        }
+        let mut pts = vec![layer_pts[0][4]];
+        let mut layer_of = vec![];
+        for (l, lp) in layer_pts[1..].iter().enumerate() {
+            pts.extend(lp);
+            layer_of.extend(std::iter::repeat_n(l as u32, lp.len()));
+        }
+        let mut moves = polyline(&pts, 50.0);
+        for (m, &l) in moves.iter_mut().zip(&layer_of) {
+            m.layer = l;
+            m.z = 0.2 * f64::from(l + 1);
+        }
+        moves
+    }
+
+    #[test]
+    fn the_previous_layer_tuner_recovers_the_drift_between_layers() {
+        // Every layer is the one below moved rigidly, so the junction at the same
+        // place one layer down turns exactly as the target will, and the right
+        // match predicts every anchor with a layer below exactly (H ≤ 5 moves per
+        // layer). Rotating by 20° moves the points (radii 4–5.5 mm) by
+        // 2r·sin 10° = 1.39–1.91 mm and turns every heading by 20°; the nearest
+        // wrong point is ≥ 2·4·sin 20° = 2.74 mm away. So every radius ≥ 2 mm
+        // with a tolerance ≥ 30° ties at the lowest MAE, radius ≤ 1 mm or 10°
+        // finds nothing (or worse), and the first of the tied grid points —
+        // the smallest radius and tolerance that cover the drift — wins.
+        let tasks = [HorizonTask::new(2), HorizonTask::new(4)];
+        let rot = 20f64.to_radians();
+        let rotated = junctions(&drifting_layers(12, |(x, y)| (x * rot.cos() - y * rot.sin(), x * rot.sin() + y * rot.cos())));
+        let (best, trials) = tune_previous_layer(&[&rotated], &tasks);
+        assert_eq!(best, PreviousLayer { max_dist_mm: 2.0, heading_tol_deg: 30.0 });
+        // Its MAE is that of the anchors without a layer below (predicted 0°: layer 0's junctions 0–4), exactly.
+        let (mut err, mut n) = (0.0, 0);
+        for task in &tasks {
+            let truth = targets(&rotated, task);
+            err += truth.iter().enumerate().filter(|(i, _)| rotated[*i].layer == 0).map(|(_, t)| t.0).sum::<f64>();
+            n += truth.len();
+        }
+        let won = trials.iter().find(|t| t.settings == best).expect("the winner is a trial");
+        assert!((won.mae_deg - err / n as f64).abs() < 1e-9, "{} vs {}", won.mae_deg, err / n as f64);
+        // Radii below the drift match nothing: "no turn" everywhere.
+        let no_turn_mae: f64 = tasks.iter().map(|t| targets(&rotated, t).iter().map(|x| x.0).sum::<f64>()).sum::<f64>() / n as f64;
+        for t in trials.iter().filter(|t| t.settings.max_dist_mm <= 1.0) {
+            assert!((t.mae_deg - no_turn_mae).abs() < 1e-9, "{t:?}");
+        }
+        // Shifted by 0.8 mm with headings kept: 1 mm and 10° suffice.
+        let shifted = junctions(&drifting_layers(12, |(x, y)| (x + 0.8, y)));
+        assert_eq!(tune_previous_layer(&[&shifted], &tasks).0, PreviousLayer { max_dist_mm: 1.0, heading_tol_deg: 10.0 });
     }
 
     #[test]
@@ -601,7 +754,7 @@ mod tests {
         // A 36-gon turns 10° at every junction: "last turn" is exact, "no turn" is 10° off.
         let pts: Vec<(f64, f64)> = (0..=72).map(|k| (f64::from(k) * 10f64.to_radians()).sin_cos()).map(|(s, c)| (10.0 * c, 10.0 * s)).collect();
         let j = junctions(&polyline(&pts, 50.0));
-        let task = Task::new(4);
+        let task = HorizonTask::new(4);
         let truth = targets(&j, &task);
         assert!(score(&truth, &last_turn(&j, &task)).angle_mae_deg < 1e-9);
         assert!((score(&truth, &no_turn(&j, &task)).angle_mae_deg - 10.0).abs() < 1e-9);
@@ -622,7 +775,7 @@ mod tests {
             pts.push((x + l * heading.cos(), y + l * heading.sin()));
         }
         let j = junctions(&polyline(&pts, 50.0));
-        let task = Task::new(8);
+        let task = HorizonTask::new(8);
         let knn = Knn::fit(&[&j], &task, KnnParams { k: 1, history: 4, max_refs: 10_000 }).expect("fits");
         let truth = targets(&j, &task);
         let pred = knn.predict(&j, &task);

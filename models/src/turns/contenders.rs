@@ -2,8 +2,8 @@
 //! network's anchors, so the network and the baselines are scored by one
 //! function on the same rows.
 
-use super::baselines::{self, Knn, KnnParams, Prediction, PreviousLayer, PreviousLayerTrial};
-use super::features::{Task, CORNER_DEG};
+use super::baselines::{self, HorizonTask, Knn, KnnParams, Prediction, PreviousLayer, PreviousLayerTrial};
+use super::features::Task;
 use super::Junction;
 use crate::ModelError;
 use serde::{Deserialize, Serialize};
@@ -48,19 +48,14 @@ impl BaselineTuning {
 /// Tune the previous-layer match on the training paths for every horizon of `task`.
 pub fn tune_previous_layer(train: &[Vec<Junction>], task: &Task) -> (PreviousLayer, Vec<PreviousLayerTrial>) {
     let paths: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
-    let tasks: Vec<baselines::Task> = task.horizons.iter().map(|&h| baseline_task(task, h)).collect();
+    let tasks: Vec<HorizonTask> = task.horizons.iter().map(|&h| HorizonTask::of(task, h)).collect();
     baselines::tune_previous_layer(&paths, &tasks)
-}
-
-/// The baselines' task at horizon `h` (same corner rule as the network's).
-pub fn baseline_task(task: &Task, h: usize) -> baselines::Task {
-    baselines::Task { horizon: h, corner_deg: CORNER_DEG, window_mm: task.corner_window_mm }
 }
 
 /// kNN baselines fitted on the training junctions, one per horizon.
 pub fn fit_knn(train: &[Vec<Junction>], task: &Task) -> Result<Vec<Knn>, ModelError> {
     let paths: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
-    task.horizons.iter().map(|&h| Knn::fit(&paths, &baseline_task(task, h), KnnParams::default())).collect()
+    task.horizons.iter().map(|&h| Knn::fit(&paths, &HorizonTask::of(task, h), KnnParams::default())).collect()
 }
 
 /// One method's predictions at one horizon for anchors `0..n − H`.
@@ -87,7 +82,7 @@ fn wrap(method: &str, p: Vec<Prediction>) -> MethodPredictions {
 /// for `h`), with the tuned previous-layer match and F1 thresholds (untuned:
 /// the defaults, 0.5).
 pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<&Knn>, tuning: Option<&BaselineTuning>) -> Vec<MethodPredictions> {
-    let t = baseline_task(task, h);
+    let t = HorizonTask::of(task, h);
     let prev = tuning.map_or(PreviousLayer::default(), |b| b.previous_layer);
     let mut out = vec![
         wrap(TRIVIAL[0], baselines::no_turn(j, &t)),

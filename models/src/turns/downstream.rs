@@ -113,9 +113,10 @@ pub const DEFECT_CAP: f64 = 1.0;
 /// the extruder's limit, from a settled start at `head(t0)`. From `quiet` on,
 /// head and target are constant: once `p` has caught up, `u` only relaxes
 /// monotonically towards `v + p`, so the worst is already seen and the loop ends.
-fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f64, t1: f64, quiet: f64, ex: &Extrusion) -> f64 {
+fn pressure_defect(head: impl Fn(f64) -> f64, target: impl Fn(f64) -> f64, t0: f64, t1: f64, quiet: f64, ex: &Extrusion) -> f64 {
     let (k, a_e) = (ex.k_s, ex.head_accel_limit());
     let dt = 2e-4;
+    let decay = (-dt / k).exp();
     let steps = ((t1 - t0) / dt).ceil() as usize;
     let (mut p, mut u, mut worst) = (0.0f64, head(t0), 0.0f64);
     for s in 0..steps {
@@ -128,7 +129,7 @@ fn pressure_defect(head: &dyn Fn(f64) -> f64, target: &dyn Fn(f64) -> f64, t0: f
         p = if (goal - p).abs() <= a_e * dt { goal } else { p + (goal - p).signum() * a_e * dt };
         // K·u̇ = v_in − u over the step, the feed taken at its midpoint.
         let v_in = head(t + 0.5 * dt) + p;
-        u = v_in + (u - v_in) * (-dt / k).exp();
+        u = v_in + (u - v_in) * decay;
         let v = head(t + dt);
         if v > 1e-9 {
             worst = worst.max((u / v - 1.0).abs());
@@ -177,7 +178,7 @@ pub fn corner_defect(v_n: f64, v_c: f64, a: f64, t_know_s: f64, ex: &Extrusion) 
     // From before the first ramp until the pressure has settled (3 K) after the re-acceleration.
     // Quiet once cruise resumes, the last ramp is done and the knowledge has come.
     let quiet = (2.0 * t_b + ramp_lead(a, ex)).max(t_know_s);
-    pressure_defect(&head, &target, window_start(a, ex), 2.0 * t_b + 3.0 * k, quiet, ex)
+    pressure_defect(head, target, window_start(a, ex), 2.0 * t_b + 3.0 * k, quiet, ex)
 }
 
 /// Width defect of a false call: the head cruises at `v` through a junction
@@ -194,7 +195,7 @@ pub fn false_call_defect(v: f64, a: f64, t_cancel_s: f64, ex: &Extrusion) -> f64
     }
     let (k, a_e) = (ex.k_s, ex.head_accel_limit());
     let target = |t: f64| if t < t_cancel_s { centred_ramps(&[(0.0, -k * a)], a_e, t) } else { 0.0 };
-    pressure_defect(&|_| v, &target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, t_cancel_s.max(ramp_lead(a, ex)), ex)
+    pressure_defect(|_| v, target, window_start(a, ex), t_cancel_s.max(0.0) + 3.0 * k, t_cancel_s.max(ramp_lead(a, ex)), ex)
 }
 
 /// What one planner knows of one file, and its full-lookahead plan: shared by
@@ -206,6 +207,24 @@ pub struct Firmware {
     ideal: super::planner::Profile,
     /// Per junction (computed once, shared by every method and horizon).
     events: Vec<Event>,
+    /// Per junction, the defect of its corner known before any ramp, keyed by
+    /// its braking `[v_n, v_c, a]` (shared by the buffers of one file: it does
+    /// not depend on the buffer).
+    early: Early,
+}
+
+/// See [`Firmware::early`].
+type Early = std::rc::Rc<Vec<std::cell::OnceCell<([f64; 3], f64)>>>;
+
+/// The defect of a corner known before any ramp, from `early[idx]` when its braking matches.
+fn early_defect(early: &Early, idx: usize, v_n: f64, v_c: f64, a: f64, ex: &Extrusion) -> f64 {
+    let key = [v_n, v_c, a];
+    let cell = &early[idx];
+    match cell.get() {
+        Some((k, d)) if *k == key => *d,
+        Some(_) => corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex),
+        None => cell.get_or_init(|| (key, corner_defect(v_n, v_c, a, f64::NEG_INFINITY, ex))).1,
+    }
 }
 
 /// One junction: its acceleration and time, and its braking event if sharp.
@@ -222,21 +241,26 @@ struct Corner {
     /// When braking starts, and when the buffer alone learns of the corner, s.
     t_dec: f64,
     t_known: f64,
-    /// Defect known by the buffer alone, and known before any ramp (simulated
-    /// when first needed: by a call, or when the buffer alone knows that early).
+    /// Defect known by the buffer alone (the one known before any ramp is
+    /// simulated when first needed: by a call, or when the buffer alone knows that early).
     defect_buffer: f64,
-    defect_early: std::cell::OnceCell<f64>,
-}
-
-impl Corner {
-    fn defect_early(&self, a: f64, ex: &Extrusion) -> f64 {
-        *self.defect_early.get_or_init(|| corner_defect(self.v_n, self.v_c, a, f64::NEG_INFINITY, ex))
-    }
 }
 
 impl Firmware {
     /// Plan `moves` (junctions `j`) with `planner`.
     pub fn new(planner: &Planner, moves: &[Move], j: &[Junction], ex: &Extrusion) -> Firmware {
+        Firmware::sharing(planner, moves, j, ex, &Early::default())
+    }
+
+    /// [`Firmware::new`] for each planner (buffer) of one file, sharing the
+    /// corners' early defects, which do not depend on the buffer.
+    pub fn each(planners: &[Planner], moves: &[Move], j: &[Junction], ex: &Extrusion) -> Vec<Firmware> {
+        let early = Early::new((0..j.len()).map(|_| std::cell::OnceCell::new()).collect());
+        planners.iter().map(|p| Firmware::sharing(p, moves, j, ex, &early)).collect()
+    }
+
+    fn sharing(planner: &Planner, moves: &[Move], j: &[Junction], ex: &Extrusion, early: &Early) -> Firmware {
+        let early = if early.len() >= j.len() { early.clone() } else { Early::new((0..j.len()).map(|_| std::cell::OnceCell::new()).collect()) };
         let (_, ideal) = planner.plan(moves);
         let know = planner.knowledge(moves);
         let max_a = planner.params().max_accel_mm_s2;
@@ -251,11 +275,13 @@ impl Firmware {
                     // Braking starts (full lookahead) this long before the junction's time.
                     let t_dec = t_junction - (v_n - v_c) / a;
                     let t_known = ideal.blocks[know[idx].known_from_move].t_start_s;
-                    let mut c = Corner { v_n, v_c, t_dec, t_known, defect_buffer: 0.0, defect_early: std::cell::OnceCell::new() };
                     // Known before the window opens, the buffer alone is the early case: one simulation.
-                    c.defect_buffer =
-                        if t_known - t_dec <= window_start(a, ex) { c.defect_early(a, ex) } else { corner_defect(v_n, v_c, a, t_known - t_dec, ex) };
-                    c
+                    let defect_buffer = if t_known - t_dec <= window_start(a, ex) {
+                        early_defect(&early, idx, v_n, v_c, a, ex)
+                    } else {
+                        corner_defect(v_n, v_c, a, t_known - t_dec, ex)
+                    };
+                    Corner { v_n, v_c, t_dec, t_known, defect_buffer }
                 });
                 Event { a, t_junction, corner }
             })
@@ -264,7 +290,7 @@ impl Firmware {
             super::planner::Lookahead::Blocks { n } => n,
             _ => 0,
         };
-        Firmware { blocks, know, ideal, events }
+        Firmware { blocks, know, ideal, events, early }
     }
 }
 
@@ -319,7 +345,7 @@ impl Firmware {
         let defect_predicted = if t_known_pred >= c.t_known {
             c.defect_buffer
         } else if t_known_pred - c.t_dec <= window_start(ev.a, ex) {
-            c.defect_early(ev.a, ex)
+            early_defect(&self.early, idx, c.v_n, c.v_c, ev.a, ex)
         } else {
             corner_defect(c.v_n, c.v_c, ev.a, t_known_pred - c.t_dec, ex)
         };

@@ -33,9 +33,21 @@ pub fn truth(j: &[Junction], task: &Task, horizon: usize) -> Truth {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MethodScore {
     pub method: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub mae_deg: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub f1: f64,
+    /// NaN (JSON null) with one class, or pooled over groups ([`by_group`]).
+    #[serde(deserialize_with = "nan_if_null")]
     pub auc: f64,
+    /// Corner calls' true positives, false positives and false negatives (F1 pools over files from them).
+    #[serde(default)]
+    pub confusion: [usize; 3],
+}
+
+/// JSON has no NaN: serde_json writes it as null; read null back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// Score `angle_deg` and `corner_score` (any monotone corner score; a corner is
@@ -45,12 +57,92 @@ pub fn score(method: &str, truth: &Truth, angle_deg: &[f64], corner_score: &[f64
     let n = truth.angle_deg.len().min(angle_deg.len()).min(corner_score.len());
     let mae = if n == 0 { f64::NAN } else { (0..n).map(|i| (angle_deg[i] - truth.angle_deg[i]).abs()).sum::<f64>() / n as f64 };
     let labels = &truth.corner[..n];
+    let confusion = super::baselines::confusion(labels, &corner_score[..n], threshold);
     MethodScore {
         method: method.into(),
         mae_deg: mae,
-        f1: super::baselines::f1(labels, &corner_score[..n], threshold).unwrap_or(0.0),
+        f1: super::baselines::f1_of(confusion).unwrap_or(0.0),
         auc: super::baselines::auc(labels, &corner_score[..n]).unwrap_or(f64::NAN),
+        confusion,
     }
+}
+
+/// Scores pooled over the files of one group (a slicer, in `turns eval`):
+/// MAE weighted by rows, F1 from the summed confusion counts; AUC is not
+/// poolable from per-file scores and is NaN. Line width pooled and each
+/// method's gain over the buffer alone with its bootstrap over the group's files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupSummary {
+    pub group: String,
+    pub files: usize,
+    pub junctions: usize,
+    pub horizons: Vec<HorizonScores>,
+    pub downstream: Vec<Downstream>,
+    pub gains: Vec<Gain>,
+}
+
+/// Pool `per_file` by `groups` (one label per file, groups in order of first appearance).
+pub fn by_group(per_file: &[FileEval], groups: &[&str], seed: u64) -> Vec<GroupSummary> {
+    let mut order: Vec<&str> = vec![];
+    for g in groups {
+        if !order.contains(g) {
+            order.push(g);
+        }
+    }
+    order
+        .into_iter()
+        .map(|g| {
+            let files: Vec<&FileEval> = per_file.iter().zip(groups).filter(|(_, x)| **x == g).map(|(f, _)| f).collect();
+            let mut horizons: Vec<HorizonScores> = vec![];
+            for f in &files {
+                for h in &f.horizons {
+                    let slot = match horizons.iter().position(|x| x.horizon == h.horizon) {
+                        Some(k) => k,
+                        None => {
+                            horizons.push(HorizonScores { horizon: h.horizon, rows: 0, methods: vec![] });
+                            horizons.len() - 1
+                        }
+                    };
+                    let pooled = &mut horizons[slot];
+                    for m in &h.methods {
+                        let k = pooled.methods.iter().position(|x| x.method == m.method).unwrap_or_else(|| {
+                            pooled.methods.push(MethodScore { method: m.method.clone(), mae_deg: 0.0, f1: 0.0, auc: f64::NAN, confusion: [0; 3] });
+                            pooled.methods.len() - 1
+                        });
+                        let p = &mut pooled.methods[k];
+                        // Sum of absolute errors for now; divided by the rows below.
+                        p.mae_deg += m.mae_deg * h.rows as f64;
+                        for (a, b) in p.confusion.iter_mut().zip(m.confusion) {
+                            *a += b;
+                        }
+                    }
+                    pooled.rows += h.rows;
+                }
+            }
+            for h in &mut horizons {
+                for m in &mut h.methods {
+                    m.mae_deg /= h.rows.max(1) as f64;
+                    m.f1 = super::baselines::f1_of(m.confusion).unwrap_or(0.0);
+                }
+            }
+            let mut cells: Vec<((usize, usize, String), Vec<Downstream>)> = vec![];
+            for d in files.iter().flat_map(|f| &f.downstream) {
+                let key = (d.blocks, d.horizon, d.method.clone());
+                match cells.iter_mut().find(|(k, _)| *k == key) {
+                    Some((_, v)) => v.push(d.clone()),
+                    None => cells.push((key, vec![d.clone()])),
+                }
+            }
+            GroupSummary {
+                group: g.to_string(),
+                files: files.len(),
+                junctions: files.iter().map(|f| f.junctions).sum(),
+                horizons,
+                downstream: cells.iter().map(|(_, d)| Downstream::pool(d)).collect(),
+                gains: cells.iter().map(|(_, d)| file_gain(d, seed)).collect(),
+            }
+        })
+        .collect()
 }
 
 pub use super::contenders::MethodPredictions;
@@ -120,6 +212,9 @@ pub struct Summary {
     /// Per (buffer, horizon, method), as `downstream`: the gain over the buffer alone across files.
     #[serde(default)]
     pub gains: Vec<Gain>,
+    /// The same pooled per slicer group ([`by_group`]; filled by the caller, who knows the slicers).
+    #[serde(default)]
+    pub slicers: Vec<GroupSummary>,
 }
 
 /// The firmware of the downstream comparison: Marlin's planner (junction
@@ -252,7 +347,7 @@ pub fn evaluate(
     // Files on every core; each file's horizons and buffers in order.
     let per_file = crate::parallel::par_map(files, |(name, moves)| -> Result<FileOutcome, ModelError> {
         let j = &super::junctions(moves);
-        let firmware: Vec<Firmware> = planners.iter().map(|p| Firmware::new(p, moves, j, &ex)).collect();
+        let firmware = Firmware::each(&planners, moves, j, &ex);
         let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
         let (mut tp, mut downs) = (vec![], vec![]);
         for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
@@ -310,7 +405,56 @@ pub fn evaluate(
         .collect();
     let downstream = pooled_down.values().map(|d| Downstream::pool(d)).collect();
     let gains = pooled_down.values().map(|d| file_gain(d, seed)).collect();
-    Ok((Summary { files: files.len(), junctions: total, horizons, downstream, gains }, out))
+    Ok((Summary { files: files.len(), junctions: total, horizons, downstream, gains, slicers: vec![] }, out))
+}
+
+/// One group (slicer) held out: trained and tuned without its files, scored on its test files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeldOutGroup {
+    pub group: String,
+    pub train_files: usize,
+    pub tune_files: usize,
+    /// The previous-layer match tuned on the remaining training files.
+    pub previous_layer: super::baselines::PreviousLayer,
+    pub summary: Summary,
+}
+
+/// Files as `(name, group, moves)`.
+pub type GroupedFiles = [(String, String, Vec<Move>)];
+
+/// Leave one group out (issue #25: one slicer): for each group of the `test`
+/// files in order, [`train_and_tune`] on the `train` and `tune` files of the
+/// other groups, then [`evaluate`] that group's test files at every horizon
+/// of `task` (bootstrap seeded by `params`' seed).
+pub fn leave_one_group_out(
+    train: &GroupedFiles,
+    tune: &GroupedFiles,
+    test: &GroupedFiles,
+    task: &super::features::Task,
+    params: &crate::nets::params::ValidTrainParams,
+    blocks: &[usize],
+) -> Result<Vec<HeldOutGroup>, ModelError> {
+    let mut groups: Vec<&str> = vec![];
+    for (_, g, _) in test {
+        if !groups.contains(&g.as_str()) {
+            groups.push(g);
+        }
+    }
+    let without = |files: &GroupedFiles, g: &str| -> Vec<Vec<Move>> { files.iter().filter(|f| f.1 != g).map(|f| f.2.clone()).collect() };
+    let mut out = vec![];
+    for g in groups {
+        let (tr, tu) = (without(train, g), without(tune, g));
+        if tr.is_empty() {
+            return Err(ModelError::Shape(format!("every training file is from {g}: nothing to train on without it")));
+        }
+        let model = train_and_tune(&tr, &tu, task, params, blocks, &mut |_| {})?;
+        let files: Vec<(String, Vec<Move>)> = test.iter().filter(|f| f.1 == g).map(|f| (f.0.clone(), f.2.clone())).collect();
+        let refs: Vec<Vec<Junction>> = tr.iter().map(|m| super::junctions(m)).collect();
+        let (summary, _) = evaluate(&files, &model, &refs, blocks, &task.horizons, params.seed())?;
+        let previous_layer = model.baselines.as_ref().map(|b| b.previous_layer).unwrap_or_default();
+        out.push(HeldOutGroup { group: g.to_string(), train_files: tr.len(), tune_files: tu.len(), previous_layer, summary });
+    }
+    Ok(out)
 }
 
 /// Train on the `train` files' junctions, tune the baselines' previous-layer
@@ -365,8 +509,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             })
             .collect();
         let mut gains = vec![];
-        for planner in &planners {
-            let fw = Firmware::new(planner, moves, j, &ex);
+        for fw in Firmware::each(&planners, moves, j, &ex) {
             for (ps, raw) in &preds {
                 let outcomes = Outcomes::new(j, &fw, raw.horizon, m.task.corner_window_mm, &ex);
                 gains.push(ps.iter().map(|p| merge_ties(outcomes.call_gains(&as_calls(p, raw, 0.0)), file)).collect());
@@ -448,5 +591,42 @@ fn trace(j: &[Junction], h: usize, t: &Truth, preds: &[MethodPredictions]) -> Tr
         actual_deg: t.angle_deg[start..end].to_vec(),
         predicted_deg: of(NETWORK),
         previous_layer_deg: of(super::contenders::PREVIOUS_LAYER),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(name: &str, truth: &Truth, angle: &[f64], score: &[f64]) -> FileEval {
+        let m = super::score("m", truth, angle, score, 0.5);
+        FileEval {
+            file: name.into(),
+            junctions: truth.angle_deg.len(),
+            horizons: vec![HorizonScores { horizon: 16, rows: truth.angle_deg.len(), methods: vec![m] }],
+            downstream: vec![],
+            traces: vec![],
+        }
+    }
+
+    #[test]
+    fn a_group_scores_as_its_files_pooled() {
+        // Two files of one group and one of another: the group's MAE and F1
+        // are those of `score` on the two files' rows put together.
+        let a = Truth { horizon: 16, angle_deg: vec![10.0, 90.0, 0.0, 45.0], corner: vec![false, true, false, true] };
+        let b = Truth { horizon: 16, angle_deg: vec![120.0, 5.0], corner: vec![true, false] };
+        let (pa, sa) = (vec![0.0, 80.0, 10.0, 50.0], vec![0.1, 0.9, 0.6, 0.4]);
+        let (pb, sb) = (vec![100.0, 5.0], vec![0.7, 0.2]);
+        let files = [file("a", &a, &pa, &sa), file("b", &b, &pb, &sb), file("c", &b, &pa[..2], &sa[..2])];
+        let groups = by_group(&files, &["x", "x", "y"], 7);
+        assert_eq!(groups.iter().map(|g| (g.group.as_str(), g.files)).collect::<Vec<_>>(), vec![("x", 2), ("y", 1)]);
+        let both = Truth { horizon: 16, angle_deg: [a.angle_deg.clone(), b.angle_deg.clone()].concat(), corner: [a.corner.clone(), b.corner.clone()].concat() };
+        let want = super::score("m", &both, &[pa, pb].concat(), &[sa, sb].concat(), 0.5);
+        let got = &groups[0].horizons[0].methods[0];
+        // Mean absolute error (10+10+10+5+20+0)/6 = 55/6; F1 from TP 2, FP 1, FN 1 = 2/3.
+        assert!((got.mae_deg - 55.0 / 6.0).abs() < 1e-12 && (want.mae_deg - 55.0 / 6.0).abs() < 1e-12, "{got:?}");
+        assert_eq!((got.f1, got.confusion), (want.f1, want.confusion));
+        assert!((got.f1 - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(groups[0].horizons[0].rows, 6);
     }
 }

@@ -127,7 +127,12 @@ impl LayerIndex {
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for &k in self.cells.get(&(cx + dx, cy + dy)).map(Vec::as_slice).unwrap_or(&[]) {
-                    let d = (j[k].x - x).hypot(j[k].y - y);
+                    let (ex, ey) = (j[k].x - x, j[k].y - y);
+                    // Well outside the radius: skip before the exact (and slow) hypot.
+                    if ex * ex + ey * ey > MATCH_RADIUS_MM * MATCH_RADIUS_MM * (1.0 + 1e-9) {
+                        continue;
+                    }
+                    let d = ex.hypot(ey);
                     if d <= MATCH_RADIUS_MM
                         && heading_diff(j[k].heading_deg, heading) <= HEADING_TOL_DEG
                         && best.is_none_or(|(b, bd)| d < bd || (d == bd && k < b))

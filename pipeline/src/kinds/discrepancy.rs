@@ -8,7 +8,7 @@ use crate::error::Result;
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
 use crate::store::Hash;
-use fdmlab_models::discrepancy::SelectOptions;
+use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions};
 use serde::{Deserialize, Serialize};
 
 /// The spec of a `discrepancy` experiment.
@@ -28,14 +28,14 @@ pub struct DiscrepancySpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Section {
-    /// `thermal`, `motion` or `extrusion`.
-    pub domain: String,
+    /// The domain (`DomainName`: `thermal`, `motion`, `extrusion`).
+    pub domain: DomainName,
     /// Data file(s), relative to the spec (several are pooled as segments).
     pub data: Files,
     /// Starting model stored by another run (default: fit the domain's base model).
     #[serde(default)]
     pub model: Option<ModelRef>,
-    /// Most effects to add (1..=7, default 3).
+    /// Most effects to add (limits of `SelectOptions`, docs/limits.md).
     #[serde(default = "default_max_effects")]
     pub max_effects: usize,
     /// Family-wise significance level per selection step (default 0.01).
@@ -96,7 +96,7 @@ fn default_collinearity() -> f64 {
 struct Params {
     domain: DomainName,
     data: Vec<String>,
-    select: SelectOptions,
+    select: ValidSelectOptions,
     read: ReadSettings,
     with_model: bool,
 }
@@ -105,17 +105,9 @@ struct Params {
 pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: DiscrepancySpec = spec.parse()?;
     let d = &s.discrepancy;
-    let domain = DomainName::parse(&d.domain).map_err(|_| spec.bad_value("discrepancy.domain", "expected thermal, motion or extrusion"))?;
-    let rules: [(&str, bool, &str); 3] = [
-        ("discrepancy.max_effects", (1..=7).contains(&d.max_effects), "must be within 1..=7"),
-        ("discrepancy.alpha", d.alpha > 0.0 && d.alpha < 0.5, "must be within (0, 0.5)"),
-        ("discrepancy.collinearity", d.collinearity > 0.5 && d.collinearity <= 1.0, "must be within (0.5, 1]"),
-    ];
-    for (key, ok, why) in rules {
-        if !ok {
-            return Err(spec.bad_value(key, why));
-        }
-    }
+    let domain = d.domain;
+    let select =
+        SelectOptions { max_effects: d.max_effects, alpha: d.alpha, collinearity: d.collinearity }.check().map_err(|e| spec.bad_param("discrepancy", e))?;
     if let Some(f) = &s.read.format {
         fdmlab_datasets::thermal::LogFormat::parse(f).map_err(|e| spec.bad_value("read.format", e.to_string()))?;
     }
@@ -124,13 +116,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         return Err(spec.bad_value("discrepancy.data", "name at least one data file"));
     }
     let paths: Vec<std::path::PathBuf> = names.iter().map(|n| spec.input_file("discrepancy.data", n)).collect::<Result<_>>()?;
-    let params = Params {
-        domain,
-        data: names,
-        select: SelectOptions { max_effects: d.max_effects, alpha: d.alpha, collinearity: d.collinearity },
-        read: s.read.clone(),
-        with_model: d.model.is_some(),
-    };
+    let params = Params { domain, data: names, select, read: s.read.clone(), with_model: d.model.is_some() };
     let declared = paths.clone();
     let mut stage = Stage::typed("discrepancy", 1, params, move |input, p: &Params| {
         let bytes: Vec<Vec<u8>> = paths.iter().map(|f| input.file(f)).collect::<Result<_>>()?;

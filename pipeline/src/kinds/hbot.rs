@@ -142,6 +142,21 @@ const CHECK_KEYS: &[(&str, &str)] = &[
 
 impl HbotSpec {
     /// The validated study configuration; every error is located in the spec.
+    /// Defaults and limits (`StudyConfig::check` and the machines' own checks):
+    ///
+    /// | key | default | limits |
+    /// |---|---|---|
+    /// | `truth.<symbol>` (`T0`, `Kt`, `J_M`, …) | the study's hidden machine (near the source's table 5) | known symbols; masses, inertia, stiffnesses, radius > 0; damping, friction ≥ 0 |
+    /// | `drive.stiffness_nm_per_rad`, `drive.holding_torque_nm` | `StepperDrive::default()` | > 0 (applies to truth and initial estimates) |
+    /// | `sensor.sample_dt_s` | 0.01 s | [0.0001, 0.1] s |
+    /// | `sensor.noise_um`, `sensor.resolution_um` | 2, 1 µm | 0..1000 µm |
+    /// | `screening.threshold` | 0.03 | [0, 1) |
+    /// | `taguchi.second_round`, `taguchi.shrink` | true, 0.5 | shrink in (0, 1] |
+    /// | `taguchi.bridge` | the source's table 3 (T0, Kt, J_M, b_bridge, Fc_bridge) | 1–13 factors; levels finite, ≥ 0, increasing; a parameter once |
+    /// | `taguchi.cart` | m_cart, b_cart, Fc_cart log-spaced | ≤ 4 factors; same level rules |
+    /// | `compensation.speed_mm_s` | 10.667 mm/s (8 mm in 0.75 s) | > 0 |
+    /// | `compensation.stops_s` | the source's ten stops 0.36–0.80 s | ≥ 1 stop, each in (0, 60] s |
+    /// | `compensation.iterations` | 3 | 1–50 |
     fn config(&self, spec: &SpecFile) -> Result<ValidStudy> {
         let mut cfg = StudyConfig::default();
         for (name, &v) in &self.truth {
@@ -153,16 +168,9 @@ impl HbotSpec {
             cfg.initial.drive = d;
         }
         let s = &self.sensor;
-        let rules: [(&str, bool, &str); 3] = [
-            ("sensor.sample_dt_s", s.sample_dt_s.is_finite() && s.sample_dt_s >= 1e-4 && s.sample_dt_s <= 0.1, "must be in [0.0001, 0.1] s"),
-            ("sensor.noise_um", s.noise_um.is_finite() && (0.0..=1000.0).contains(&s.noise_um), "must be within 0..1000 µm"),
-            ("sensor.resolution_um", s.resolution_um.is_finite() && (0.0..=1000.0).contains(&s.resolution_um), "must be within 0..1000 µm"),
-        ];
-        for (key, ok, why) in rules {
-            if !ok {
-                return Err(spec.bad_value(key, why));
-            }
-        }
+        spec.ensure(s.sample_dt_s.is_finite() && s.sample_dt_s >= 1e-4 && s.sample_dt_s <= 0.1, "sensor.sample_dt_s", "must be in [0.0001, 0.1] s")?;
+        spec.ensure(s.noise_um.is_finite() && (0.0..=1000.0).contains(&s.noise_um), "sensor.noise_um", "must be within 0..1000 µm")?;
+        spec.ensure(s.resolution_um.is_finite() && (0.0..=1000.0).contains(&s.resolution_um), "sensor.resolution_um", "must be within 0..1000 µm")?;
         cfg.sensor =
             fdmlab_models::hbot::sensor::LaserSensor { sample_dt_s: s.sample_dt_s, noise_sd_m: s.noise_um * 1e-6, resolution_m: s.resolution_um * 1e-6 };
         cfg.screening_threshold = self.screening.threshold;

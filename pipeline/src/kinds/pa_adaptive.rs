@@ -162,29 +162,13 @@ fn twin_config(spec: &SpecFile, t: &TwinSpec, seed: u64) -> Result<TwinConfig> {
         width_mm: 1.2 * t.nozzle_setting_mm,
         ..TwinConfig::default()
     };
-    // A structured parameter name from the model layer maps to its spec key by this table.
-    cfg.check().map_err(|e| {
-        let name = match &e {
-            fdmlab_models::ModelError::InvalidParameter { name, .. } => name.as_str(),
-            _ => "",
-        };
-        let key = match name {
-            "layer_mm" => "twin.layer_mm",
-            "hotend_c" => "twin.hotend_c",
-            "nozzle_setting_mm" | "width_mm" => "twin.nozzle_setting_mm",
-            "shear_thinning_per_mm3_s" => "twin.shear_thinning_per_mm3_s",
-            _ => "twin",
-        };
-        spec.bad_value(key, e.to_string())
-    })?;
+    // `width_mm` is 1.2 × the nozzle setting, checked with it (the nozzle first).
+    cfg.check().map_err(|e| spec.bad_param("twin", e))?;
     Ok(cfg)
 }
 
 fn check_list(spec: &SpecFile, key: &str, v: &[f64], lo: f64, hi: f64) -> Result<()> {
-    if v.len() < 2 || v.iter().any(|x| !(x.is_finite() && *x >= lo && *x <= hi)) {
-        return Err(spec.bad_value(key, format!("give at least 2 values within {lo}–{hi}")));
-    }
-    Ok(())
+    spec.ensure(v.len() >= 2 && v.iter().all(|x| x.is_finite() && *x >= lo && *x <= hi), key, &format!("give at least 2 values within {lo}–{hi}"))
 }
 
 /// Validate the spec and return its stages.
@@ -193,12 +177,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let twin = twin_config(spec, &s.twin, s.experiment.seed)?;
     check_list(spec, "twin.speeds", &s.twin.speeds, twin.slow_mm_s + 1.0, 1000.0)?;
     check_list(spec, "twin.accels", &s.twin.accels, 10.0, 100_000.0)?;
-    if !(20..=10_000).contains(&s.fit.samples) {
-        return Err(spec.bad_value("fit.samples", "must be within 20–10,000"));
-    }
-    if !(s.lines.noise_sd_mm3_s.is_finite() && s.lines.noise_sd_mm3_s > 0.0 && s.lines.noise_sd_mm3_s <= 1.0) {
-        return Err(spec.bad_value("lines.noise_sd_mm3_s", "must be within (0, 1] mm³/s"));
-    }
+    spec.ensure((20..=10_000).contains(&s.fit.samples), "fit.samples", "must be within 20–10,000")?;
+    let noise = s.lines.noise_sd_mm3_s;
+    spec.ensure(noise.is_finite() && noise > 0.0 && noise <= 1.0, "lines.noise_sd_mm3_s", "must be within (0, 1] mm³/s")?;
     let d = DesignStudy::default();
     let study = DesignStudy {
         grid_speeds_mm_s: s.twin.speeds.clone(),
@@ -208,13 +189,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         seeds: s.design.seeds.clone(),
         samples: s.design.samples,
     };
-    if s.design.seeds.is_empty() || s.design.seeds.contains(&s.experiment.seed) {
-        return Err(spec.bad_value("design.seeds", "give held-out seeds, none equal to experiment.seed"));
-    }
+    let held_out = !s.design.seeds.is_empty() && !s.design.seeds.contains(&s.experiment.seed);
+    spec.ensure(held_out, "design.seeds", "give held-out seeds, none equal to experiment.seed")?;
     study.check().map_err(|e| spec.bad_value("design", e.to_string()))?;
-    if !(20..=10_000).contains(&study.samples) {
-        return Err(spec.bad_value("design.samples", "must be within 20–10,000"));
-    }
+    spec.ensure((20..=10_000).contains(&study.samples), "design.samples", "must be within 20–10,000")?;
     for f in &s.export.formats {
         let fmt = ExportFormat::parse(f).map_err(|e| spec.bad_value("export.formats", e.to_string()))?;
         if !matches!(fmt, ExportFormat::Orca | ExportFormat::OrcaProfile | ExportFormat::Kalico | ExportFormat::KlipperAdaptive) {

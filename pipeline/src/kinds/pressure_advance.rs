@@ -2,7 +2,7 @@
 //! (the twin's grid, a CSV, or the ingested prints) → cross-validated regressor →
 //! firmware/daemon exports → report.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::requests::{CalibrationRequest, ValidCalibration};
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
@@ -10,10 +10,9 @@ use fdmlab_datasets::pa::calibration::{Firmware, Manifest, Pattern};
 use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
 use fdmlab_datasets::pa::model::KaModel;
 use fdmlab_datasets::pa::{grid, scores, table};
-use fdmlab_models::extrusion::{Conditions, Extruder, GridConfig, LinePattern, Material};
+use fdmlab_models::extrusion::{Extruder, GridConfig, LinePattern};
 use fdmlab_models::nets::{Schedule, TrainParams, ValidTrainParams};
 use fdmlab_models::regress::cv::CvReport;
-use fdmlab_reports::{num, LinePlot, Report, Table};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -304,7 +303,16 @@ impl PaSpec {
         })
     }
 
-    /// Range checks and a dry run of every G-code writer (so refusals are located).
+    /// Range checks and a dry run of every G-code writer (so refusals are
+    /// located). The spec's own limits (the prints' through
+    /// `requests::CalibrationRequest`, `[model]`'s through `nets::TrainParams`):
+    ///
+    /// | key | default | limits |
+    /// |---|---|---|
+    /// | `dataset.source` | `twin` | `twin`, `file` or `prints` (≥ 4 `[[prints]]`) |
+    /// | `dataset.file` | none | given exactly when `source = "file"` |
+    /// | `prints.scale` | 10 | (0, 1000] |
+    /// | `model.folds` | 5 | 2–20 |
     fn check(&self, spec: &SpecFile) -> Result<Vec<PrintJob>> {
         Extruder::parse(&self.printer.extruder()).map_err(|e| spec.bad_value("printer.extruder", e.to_string()))?;
         let mut jobs = Vec::new();
@@ -320,17 +328,10 @@ impl PaSpec {
         }
         let m = &self.model;
         m.train_params(self.experiment.seed, spec)?;
-        let rules: [(&str, bool, &str); 4] = [
-            ("dataset.source", ["twin", "file", "prints"].contains(&self.dataset.source.as_str()), "must be twin, file or prints"),
-            ("dataset.file", (self.dataset.source == "file") == self.dataset.file.is_some(), "give `file` exactly when source = \"file\""),
-            ("dataset.source", self.dataset.source != "prints" || self.prints.len() >= 4, "`prints` needs at least 4 [[prints]] to train on"),
-            ("model.folds", (2..=20).contains(&m.folds), "must be within 2–20"),
-        ];
-        for (key, ok, why) in rules {
-            if !ok {
-                return Err(spec.bad_value(key, why));
-            }
-        }
+        spec.ensure(["twin", "file", "prints"].contains(&self.dataset.source.as_str()), "dataset.source", "must be twin, file or prints")?;
+        spec.ensure((self.dataset.source == "file") == self.dataset.file.is_some(), "dataset.file", "give `file` exactly when source = \"file\"")?;
+        spec.ensure(self.dataset.source != "prints" || self.prints.len() >= 4, "dataset.source", "`prints` needs at least 4 [[prints]] to train on")?;
+        spec.ensure((2..=20).contains(&m.folds), "model.folds", "must be within 2–20")?;
         for f in &self.export.formats {
             ExportFormat::parse(f).map_err(|e| spec.bad_value("export.formats", e.to_string()))?;
         }
@@ -501,122 +502,10 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let cv: CvReport = input.json("train", "cv.json")?;
             let prints: Vec<scores::PrintScores> = if p.prints { input.json("scores", "scores.json")? } else { vec![] };
             let data = if p.twin { Some(input.output("dataset", "data.csv")?) } else { None };
-            let report = report(&p.title, &km, &cv, &prints, data.as_deref())?;
+            let report = fdmlab_reports::pa::ka_report(&p.title, &km, &cv, &prints, data.as_deref())?;
             StageOutput::default().add_report(&report)
         })?
         .after(&deps),
     );
     Ok(stages)
-}
-
-fn q(pairs: &[(&str, String)]) -> BTreeMap<String, String> {
-    pairs.iter().map(|(k, v)| (k.to_string(), v.clone())).collect()
-}
-
-/// The comparison report: K_A vs temperature per material and layer, Bowden vs
-/// direct, model vs baselines, and each scored print's curve.
-fn report(title: &str, km: &KaModel, cv: &CvReport, prints: &[scores::PrintScores], twin_csv: Option<&[u8]>) -> Result<Report> {
-    let mut r = Report::new(title);
-    let st = &km.settings;
-    r.paragraph(format!(
-        "K_A regressor after Zimenko, Afanasev & Kolesnikov (2022): {} hidden dense layers of widths {:?} and a linear output, min–max scaling fitted on each training split, trained with Adam on burn's flex backend for {} epochs from learning rate {}.",
-        st.hidden().len(),
-        st.hidden(),
-        st.epochs(),
-        st.learning_rate()
-    ));
-    r.heading("Model vs baselines");
-    let mut t = Table::new(format!("{}-fold cross-validation on {} rows (out-of-fold errors, s)", cv.folds, cv.rows), ["model", "MAE", "max error"]);
-    for m in &cv.models {
-        t.push([m.name.clone(), num(m.mae, 4), num(m.max_error, 4)]);
-    }
-    r.table(t);
-    let mlp = cv.models.iter().find(|m| m.name == "mlp");
-    if let Some(mlp) = mlp {
-        let beaten: Vec<&str> = cv.models.iter().filter(|m| m.name != "mlp" && m.mae <= mlp.mae).map(|m| m.name.as_str()).collect();
-        r.paragraph(format!(
-            "Network: MAE {} s, max deviation {} s (source: within 0.015). {}",
-            num(mlp.mae, 4),
-            num(mlp.max_error, 4),
-            if beaten.is_empty() { "It beats every baseline's MAE.".to_string() } else { format!("It does NOT beat: {}.", beaten.join(", ")) }
-        ));
-    }
-    if twin_csv.is_some() {
-        r.heading("K_A vs print temperature");
-        for ext in ["bowden", "direct"] {
-            for mat in ["ABS", "PLA", "PETG"] {
-                let props = Material::parse(mat).map(|m| m.props()).map_err(Error::Model)?;
-                let mut plot = LinePlot::new(format!("{mat}, {ext}, D_s 0.4 mm"), "print temperature (°C)", "K_A (s)");
-                for h in [0.1, 0.2, 0.25, 0.3, 0.4] {
-                    let mut pts = Vec::new();
-                    let mut t = props.hotend_min_c;
-                    while t <= props.hotend_max_c + 1e-9 {
-                        let k = km.predict(&q(&[
-                            ("material", mat.into()),
-                            ("extruder", ext.into()),
-                            ("hotend_c", format!("{t}")),
-                            ("nozzle_setting_mm", "0.4".into()),
-                            ("layer_mm", format!("{h}")),
-                        ]))?;
-                        pts.push((t, k));
-                        t += 2.5;
-                    }
-                    plot = plot.line(format!("h = {h} mm"), pts);
-                }
-                r.plot(plot);
-            }
-        }
-        r.heading("Bowden vs direct drive (PLA, 215 °C, D_s 0.4 mm)");
-        let mut t = Table::new(
-            "K_A (s): source (Zimenko 2022, table 2), twin truth, network",
-            ["h (mm)", "Bowden source", "Bowden twin", "Bowden net", "direct source", "direct twin", "direct net"],
-        );
-        for (h, bs, ds) in [(0.3, 0.59, 0.045), (0.2, 0.63, 0.060), (0.1, 0.90, 0.090)] {
-            let truth = |e: Extruder| Conditions { material: Material::Pla, extruder: e, hotend_c: 215.0, layer_mm: h, nozzle_setting_mm: 0.4 }.true_k_s();
-            let net = |e: &str| {
-                km.predict(&q(&[
-                    ("material", "PLA".into()),
-                    ("extruder", e.into()),
-                    ("hotend_c", "215".into()),
-                    ("nozzle_setting_mm", "0.4".into()),
-                    ("layer_mm", format!("{h}")),
-                ]))
-            };
-            t.push([
-                format!("{h}"),
-                num(bs, 3),
-                num(truth(Extruder::Bowden), 3),
-                num(net("bowden")?, 3),
-                num(ds, 3),
-                num(truth(Extruder::Direct), 3),
-                num(net("direct")?, 3),
-            ]);
-        }
-        r.table(t);
-    }
-    if !prints.is_empty() {
-        r.heading("Scored prints");
-        let mut t = Table::new("Best K_A per print (local quadratic around the best mean score)", ["print", "best K_A", "± sd", "raters", "Kendall's W"]);
-        for (i, p) in prints.iter().enumerate() {
-            t.push([
-                format!("{}", i + 1),
-                num(p.best.k, 4),
-                num(p.best.k_sd, 4),
-                format!("{}", p.raters.len()),
-                p.kendall_w.map(|w| num(w, 3)).unwrap_or_else(|| "n/a".into()),
-            ]);
-        }
-        r.table(t);
-        for (i, p) in prints.iter().enumerate() {
-            let means = p.table.line_means();
-            let pts: Vec<(f64, f64)> = p.table.k.iter().zip(&means).filter_map(|(k, m)| m.map(|m| (*k, m))).collect();
-            let top = fdmlab_models::metrics::nan_max(pts.iter().map(|p| p.1));
-            r.plot(
-                LinePlot::new(format!("print {}: mean score, chosen K_A = {}", i + 1, num(p.best.k, 4)), "K_A (s)", "mean score")
-                    .points("mean score", pts)
-                    .line("chosen K_A", vec![(p.best.k, 0.0), (p.best.k, top)]),
-            );
-        }
-    }
-    Ok(r)
 }

@@ -99,7 +99,7 @@ struct SimulateParams {
 }
 
 /// A checked `thermal-ident` spec (private fields): the only form the
-/// stages are built from. Limits (one table, in docs/thermal.md):
+/// stages are built from. Limits (one table, listed in docs/limits.md):
 ///
 /// | key | default | limits |
 /// |---|---|---|
@@ -124,28 +124,25 @@ impl ThermalSpec {
     /// Range checks, each located in the spec; the checked spec.
     fn check(self, spec: &SpecFile) -> Result<ValidThermalSpec> {
         let p = &self.plant;
-        let rules: [(&str, bool, &str); 11] = [
-            ("plant.model", p.model == "first-order", "the twin model must be `first-order`"),
-            ("plant.gain_c", p.gain_c > 0.0 && p.gain_c <= 1000.0, "must be in (0, 1000] °C"),
-            ("plant.tau_s", p.tau_s > 0.0 && p.tau_s <= 10_000.0, "must be in (0, 10000] s"),
-            ("plant.ambient_c", (-40.0..=80.0).contains(&p.ambient_c), "must be within -40..80 °C"),
-            ("protocol.duty", (0.0..=1.0).contains(&self.protocol.duty) && self.protocol.duty > 0.0, "must be in (0, 1]"),
-            ("protocol.heat_s", self.protocol.heat_s > 0.0 && self.protocol.heat_s <= 86_400.0, "must be in (0, 86400] s"),
-            ("protocol.cool_s", (0.0..=86_400.0).contains(&self.protocol.cool_s), "must be within 0..86400 s"),
-            ("protocol.dt_s", self.protocol.dt_s > 0.0 && self.protocol.dt_s <= self.protocol.heat_s / 10.0, "must be > 0 and give ≥ 10 samples while heating"),
-            ("sensor.sigma_c", (0.0..=50.0).contains(&self.sensor.sigma_c), "must be within 0..50 °C"),
-            ("sensor.quantum_c", (0.0..=10.0).contains(&self.sensor.quantum_c), "must be within 0..10 °C"),
-            (
-                "identify.families",
-                self.identify.families.iter().all(|f| f == "first-order") && !self.identify.families.is_empty(),
-                "known families: first-order",
-            ),
-        ];
-        for (key, ok, why) in rules {
-            if !ok {
-                return Err(spec.bad_value(key, why));
-            }
-        }
+        spec.ensure(p.model == "first-order", "plant.model", "the twin model must be `first-order`")?;
+        spec.ensure(p.gain_c > 0.0 && p.gain_c <= 1000.0, "plant.gain_c", "must be in (0, 1000] °C")?;
+        spec.ensure(p.tau_s > 0.0 && p.tau_s <= 10_000.0, "plant.tau_s", "must be in (0, 10000] s")?;
+        spec.ensure((-40.0..=80.0).contains(&p.ambient_c), "plant.ambient_c", "must be within -40..80 °C")?;
+        spec.ensure((0.0..=1.0).contains(&self.protocol.duty) && self.protocol.duty > 0.0, "protocol.duty", "must be in (0, 1]")?;
+        spec.ensure(self.protocol.heat_s > 0.0 && self.protocol.heat_s <= 86_400.0, "protocol.heat_s", "must be in (0, 86400] s")?;
+        spec.ensure((0.0..=86_400.0).contains(&self.protocol.cool_s), "protocol.cool_s", "must be within 0..86400 s")?;
+        spec.ensure(
+            self.protocol.dt_s > 0.0 && self.protocol.dt_s <= self.protocol.heat_s / 10.0,
+            "protocol.dt_s",
+            "must be > 0 and give ≥ 10 samples while heating",
+        )?;
+        spec.ensure((0.0..=50.0).contains(&self.sensor.sigma_c), "sensor.sigma_c", "must be within 0..50 °C")?;
+        spec.ensure((0.0..=10.0).contains(&self.sensor.quantum_c), "sensor.quantum_c", "must be within 0..10 °C")?;
+        spec.ensure(
+            self.identify.families.iter().all(|f| f == "first-order") && !self.identify.families.is_empty(),
+            "identify.families",
+            "known families: first-order",
+        )?;
         let title = self.report.title.unwrap_or_else(|| format!("{} — first-order hotend identification", self.experiment.name));
         let plant = FirstOrderPlant { gain_c: p.gain_c, tau_s: p.tau_s, ambient_c: p.ambient_c };
         Ok(ValidThermalSpec {

@@ -9,12 +9,11 @@ use crate::error::Result;
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
 use fdmlab_models::thermal::control::{self, LoopSetup, PlacementMethod};
-use fdmlab_models::thermal::crossval::{self, CrossValidation};
+use fdmlab_models::thermal::crossval::{self, CrossValidation, Entry};
 use fdmlab_models::thermal::data::Experiment;
 use fdmlab_models::thermal::ident::{self, IdentOptions};
 use fdmlab_models::thermal::model::{Family, ThermalModel};
 use fdmlab_models::thermal::twin::{identification_grid, verification_grid, StepTest, Twin};
-use fdmlab_reports::{LinePlot, Report, Table};
 use nalgebra::Complex;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -188,16 +187,8 @@ struct ReportParams {
     title: String,
 }
 
-/// A model with where it came from and its own-data fit.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct Entry {
-    label: String,
-    model: ThermalModel,
-    own_fit_percent: f64,
-}
-
 /// A checked `thermal-grid` spec (private fields): the only form the stages
-/// are built from. Limits (one table, also in docs/thermal.md):
+/// are built from. Limits (one table, listed in docs/limits.md):
 ///
 /// | key | default | limits |
 /// |---|---|---|
@@ -228,23 +219,16 @@ impl GridSpec {
     fn check(self, spec: &SpecFile) -> Result<ValidGrid> {
         self.twin.check().map_err(|e| spec.bad_value("twin", e.to_string()))?;
         let (p, c, x) = (&self.protocol, &self.control, &self.export);
-        let rules: [(&str, bool, &str); 10] = [
-            ("protocol.dt_s", p.dt_s > 0.0 && p.dt_s <= 10.0, "must be in (0, 10] s"),
-            ("protocol.max_heat_s", p.max_heat_s > 0.0 && p.max_heat_s <= 86_400.0, "must be in (0, 86400] s"),
-            ("protocol.cool_s", (0.0..=86_400.0).contains(&p.cool_s), "must be within 0..86400 s"),
-            ("protocol.heat_duty", p.heat_duty > 0.0 && p.heat_duty <= 1.0, "must be in (0, 1]"),
-            ("control.pole_s", c.pole_s < 0.0 && c.pole_s > -10.0, "must be in (−10, 0) 1/s"),
-            ("control.target_c", c.target_c > 0.0 && c.target_c < 500.0, "must be in (0, 500) °C"),
-            ("control.duration_s", c.duration_s > 0.0 && c.duration_s <= 86_400.0, "must be in (0, 86400] s"),
-            ("export.heater_power_w", x.heater_power_w > 0.0 && x.heater_power_w <= 1000.0, "must be in (0, 1000] W"),
-            ("export.filament_heat_j_k_mm", x.filament_heat_j_k_mm >= 0.0 && x.filament_heat_j_k_mm.is_finite(), "must be ≥ 0 J/K/mm"),
-            ("identify.families", !self.identify.families.is_empty(), "list black-box families (the grey box is always fitted on all sets)"),
-        ];
-        for (key, ok, why) in rules {
-            if !ok {
-                return Err(spec.bad_value(key, why));
-            }
-        }
+        spec.ensure(p.dt_s > 0.0 && p.dt_s <= 10.0, "protocol.dt_s", "must be in (0, 10] s")?;
+        spec.ensure(p.max_heat_s > 0.0 && p.max_heat_s <= 86_400.0, "protocol.max_heat_s", "must be in (0, 86400] s")?;
+        spec.ensure((0.0..=86_400.0).contains(&p.cool_s), "protocol.cool_s", "must be within 0..86400 s")?;
+        spec.ensure(p.heat_duty > 0.0 && p.heat_duty <= 1.0, "protocol.heat_duty", "must be in (0, 1]")?;
+        spec.ensure(c.pole_s < 0.0 && c.pole_s > -10.0, "control.pole_s", "must be in (−10, 0) 1/s")?;
+        spec.ensure(c.target_c > 0.0 && c.target_c < 500.0, "control.target_c", "must be in (0, 500) °C")?;
+        spec.ensure(c.duration_s > 0.0 && c.duration_s <= 86_400.0, "control.duration_s", "must be in (0, 86400] s")?;
+        spec.ensure(x.heater_power_w > 0.0 && x.heater_power_w <= 1000.0, "export.heater_power_w", "must be in (0, 1000] W")?;
+        spec.ensure(x.filament_heat_j_k_mm >= 0.0 && x.filament_heat_j_k_mm.is_finite(), "export.filament_heat_j_k_mm", "must be ≥ 0 J/K/mm")?;
+        spec.ensure(!self.identify.families.is_empty(), "identify.families", "list black-box families (the grey box is always fitted on all sets)")?;
         let families = self
             .identify
             .families
@@ -367,26 +351,21 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         })?
         .after(&["identify", "crossval"]),
         Stage::typed("export", 1, v.export, |input, x| {
-            let entries: Vec<Entry> = input.json("identify", "models.json")?;
-            let placement: control::Placement = input.json("control", "placement.json")?;
-            let pid: control::Pid = input.json("control", "pid.json")?;
-            let mut out = StageOutput::default();
-            if let Some(grey) = entries.iter().find(|e| e.model.family == Family::Greybox) {
-                if let Some(rates) = grey.model.physics {
-                    use fdmlab_datasets::thermal::export as ex;
-                    let phys = ex::mpc_physics_from_rates(&rates, x.heater_power_w, x.filament_heat_j_k_mm)?;
-                    let fo = control::fopdt_of(&grey.model.state_space()?.heater_plant()?, 4000.0)?;
-                    out = out
-                        .add("marlin-mpc.gcode", "text/plain", ex::marlin_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
-                        .add("klipper-mpc.cfg", "text/plain", ex::klipper_mpc(&phys, "fdmlab thermal-grid grey box")?.into_bytes())
-                        .add("reprap.g", "text/plain", ex::reprap(&rates, fo.dead_time_s, "fdmlab thermal-grid grey box")?.into_bytes());
-                }
-            }
             use fdmlab_datasets::thermal::export as ex;
-            Ok(out
-                .add("marlin-pid.gcode", "text/plain", ex::marlin_pid(&pid, "fdmlab thermal-grid best generaliser")?.into_bytes())
-                .add("klipper-pid.cfg", "text/plain", ex::klipper_pid(&pid, "fdmlab thermal-grid best generaliser")?.into_bytes())
-                .add("thermal_gains.h", "text/x-c", ex::c_header(&placement, "best generaliser")?.into_bytes()))
+            let entries: Vec<Entry> = input.json("identify", "models.json")?;
+            let design = GridDesign {
+                grey: entries.iter().find(|e| e.model.family == Family::Greybox).filter(|e| e.model.physics.is_some()),
+                export: x,
+                placement: input.json("control", "placement.json")?,
+                pid: input.json("control", "pid.json")?,
+            };
+            let mut out = StageOutput::default();
+            // The physical formats only when the grey box identified rates.
+            for f in ex::Format::ALL.into_iter().filter(|f| design.grey.is_some() || !f.needs_physics()) {
+                let note = if f.needs_physics() { "fdmlab thermal-grid grey box" } else { "fdmlab thermal-grid best generaliser" };
+                out = out.add(f.file_name(), f.media_type(), ex::export(f, &design, note)?.into_bytes());
+            }
+            Ok(out)
         })?
         .after(&["identify", "control"]),
         Stage::typed("report", 2, ReportParams { title: v.title }, |input, p| {
@@ -396,7 +375,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
             let verif: Vec<Experiment> = input.json("grid", "verif.json")?;
             let responses: BTreeMap<String, control::Response> = input.json("control", "responses.json")?;
             let source: serde_json::Value = input.json("control", "source-designs.json")?;
-            StageOutput::default().add_report(&report(title, &entries, &cv, &verif, &responses, &source))
+            StageOutput::default().add_report(&fdmlab_reports::thermal_grid::grid_report(title, &entries, &cv, &verif, &responses, &source))
         })?
         .after(&["identify", "crossval", "grid", "control"]),
     ];
@@ -404,161 +383,31 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     Ok(stages)
 }
 
-fn report(
-    title: &str,
-    entries: &[Entry],
-    cv: &CrossValidation,
-    verif: &[Experiment],
-    responses: &BTreeMap<String, control::Response>,
-    source: &serde_json::Value,
-) -> Report {
-    let mut r = Report::new(title);
-    r.paragraph("Synthetic step tests from the physical twin on the source's identification grid (table 1) and verification grid (table 3). Black-box models are fitted per identification set as in the source; the grey box is fitted on all four sets with fan duty and head height as inputs.");
-    r.heading("Fit by order (each identification set, own data)");
-    // Black-box models per set; the grey box ("all/") is one point, shown in the table.
-    let mut sets: Vec<&str> = entries.iter().filter_map(|e| e.label.split_once('/').map(|(set, _)| set)).filter(|set| set.starts_with("set")).collect();
-    sets.dedup();
-    let mut families: Vec<Family> = entries.iter().map(|e| e.model.family).collect();
-    families.sort();
-    families.dedup();
-    for set in sets {
-        let mut fit_plot = LinePlot::new(format!("Fit by order, {set}"), "order", "fit %");
-        for &f in &families {
-            let pts: Vec<(f64, f64)> = entries
-                .iter()
-                .filter(|e| e.label.split_once('/').is_some_and(|(s, _)| s == set) && e.model.family == f)
-                .map(|e| (e.model.order as f64, e.own_fit_percent.max(0.0)))
-                .collect();
-            if !pts.is_empty() {
-                fit_plot = fit_plot.line_points(f.name(), pts);
-            }
-        }
-        r.plot(fit_plot);
-    }
-    r.heading("Model × verification set (fit %)");
-    r.table(best_per_family_and_order(entries, cv));
-    r.paragraph(format!("Best generaliser: {}. The full matrix of all {} models is in the appendix.", cv.reason, cv.models.len()));
-    if let (Some(e), Some(best)) = (verif.get(2), entries.get(cv.best)) {
-        let mut plot = LinePlot::new(format!("Step response overlay, {}", e.name), "time (s)", "temperature (°C)");
-        plot = plot.line("measured", e.temperature_c.iter().enumerate().map(|(k, y)| (k as f64 * e.dt_s, *y)).collect());
-        if let Ok(y) = best.model.simulate(e) {
-            plot = plot.line(&best.label, y.iter().enumerate().map(|(k, v)| (k as f64 * e.dt_s, *v)).collect());
-        }
-        if let Some(bb) = entries.iter().find(|x| x.label == "set1/tf-4z3").or_else(|| entries.iter().find(|x| x.label.starts_with("set1/"))) {
-            if let Ok(y) = bb.model.simulate(e) {
-                plot = plot.line(&bb.label, y.iter().enumerate().map(|(k, v)| (k as f64 * e.dt_s, *v)).collect());
-            }
-        }
-        r.plot(plot);
-    }
-    r.heading("Closed loop on the best generaliser");
-    let mut plot = LinePlot::new("Closed-loop responses", "time (s)", "rise above ambient (°C)");
-    let mut mt =
-        Table::new("Closed-loop metrics (heater duty saturated to 0..1)", ["design", "RMS after reach (°C)", "overshoot %", "settling (s)", "effort (duty·s)"]);
-    for (key, resp) in ["state_feedback", "simc", "imc"].iter().filter_map(|k| responses.get(*k).map(|r| (*k, r))) {
-        plot = plot.line(key, resp.time_s.iter().zip(&resp.y).map(|(a, b)| (*a, *b)).collect());
-        let m = &resp.metrics;
-        let f = |v: Option<f64>| v.map(|v| fdmlab_reports::num(v, 3)).unwrap_or_else(|| "—".into());
-        mt.push([key.to_string(), f(m.rms_after_reach), f(Some(m.overshoot_percent)), f(m.settling_time_s), f(Some(m.effort))]);
-    }
-    r.plot(plot);
-    r.table(mt);
-    r.heading("The source's designs (published matrices)");
-    let mut st = Table::new(
-        "Ackermann-type placement with all poles equal; M = [C(BL−A)⁻¹B]⁻¹",
-        ["model", "pole (1/s)", "M", "RMS after reach (°C, 130 °C target, u ≤ 255)"],
-    );
-    for d in source.as_array().into_iter().flatten() {
-        st.push([
-            d["model"].as_str().unwrap_or("").to_string(),
-            format!("{}", d["pole_s"]),
-            format!("{:.4e}", d["M"].as_f64().unwrap_or(f64::NAN)),
-            d["closed_loop"]["rms_after_reach"].as_f64().map(|v| fdmlab_reports::num(v, 3)).unwrap_or_else(|| "never reached".into()),
-        ]);
-    }
-    r.table(st);
-    r.paragraph(source_sentence(source));
-    r.appendix("Every model on every verification set");
-    r.table(full_matrix(cv));
-    r
+/// The `export` stage's sources: the grey box (when it identified rates) and
+/// the `control` stage's designs on the best generaliser.
+struct GridDesign<'a> {
+    grey: Option<&'a Entry>,
+    export: &'a ExportSection,
+    placement: control::Placement,
+    pid: control::Pid,
 }
 
-/// The compact matrix papers show: per family and order, the model (of any
-/// identification set) with the best mean fit, its own fit and its worst set.
-fn best_per_family_and_order(entries: &[Entry], cv: &CrossValidation) -> Table {
-    let mut best: BTreeMap<(Family, usize), usize> = BTreeMap::new();
-    let mean = |i: usize| cv.mean_fit_percent.get(i).copied().filter(|v| v.is_finite()).unwrap_or(f64::NEG_INFINITY);
-    for (i, e) in entries.iter().enumerate().take(cv.models.len()) {
-        let slot = best.entry((e.model.family, e.model.order)).or_insert(i);
-        if mean(i) > mean(*slot) {
-            *slot = i;
-        }
+impl fdmlab_datasets::thermal::export::Design for GridDesign<'_> {
+    type Error = crate::error::Error;
+    fn rates(&self) -> Result<fdmlab_models::thermal::physics::Rates> {
+        self.grey.and_then(|g| g.model.physics).ok_or_else(|| crate::error::Error::bad_input("no grey-box rates"))
     }
-    let mut t = Table::new(
-        format!("Best model per family and order by mean verification fit ({} of {} models; all in the appendix)", best.len(), cv.models.len()),
-        ["family", "order", "model", "own %", "mean %", "worst set %"],
-    );
-    for ((family, order), i) in best {
-        let worst = fdmlab_models::metrics::nan_min(cv.fit_percent[i].iter().copied());
-        t.push([
-            family.name().to_string(),
-            order.to_string(),
-            cv.models[i].clone(),
-            format!("{:.2}", cv.own_fit_percent[i]),
-            format!("{:.2}", cv.mean_fit_percent[i]),
-            format!("{worst:.2}"),
-        ]);
+    fn mpc_inputs(&self) -> Result<(f64, f64)> {
+        Ok((self.export.heater_power_w, self.export.filament_heat_j_k_mm))
     }
-    t
-}
-
-/// Every model on every verification set.
-fn full_matrix(cv: &CrossValidation) -> Table {
-    let mut cols = vec!["model".to_string(), "own %".to_string()];
-    cols.extend(cv.experiments.iter().cloned());
-    cols.push("mean %".into());
-    let mut t = Table::new("Simulation fit of every model on every verification set", cols);
-    for (i, label) in cv.models.iter().enumerate() {
-        let mut row = vec![label.clone(), format!("{:.2}", cv.own_fit_percent[i])];
-        row.extend(cv.fit_percent[i].iter().map(|v| format!("{v:.2}")));
-        row.push(format!("{:.2}", cv.mean_fit_percent[i]));
-        t.push(row);
+    fn dead_time_s(&self) -> Result<f64> {
+        let grey = self.grey.ok_or_else(|| crate::error::Error::bad_input("no grey-box model"))?;
+        Ok(control::fopdt_of(&grey.model.state_space()?.heater_plant()?, 4000.0)?.dead_time_s)
     }
-    t
-}
-
-/// The sentence comparing the computed source designs' M with the published
-/// values (4-state at −0.015: ≈ 0.0011; 5-state: ≈ 1.0), from this run's numbers.
-fn source_sentence(source: &serde_json::Value) -> String {
-    let m = |model: &str, pole: f64| {
-        source.as_array().into_iter().flatten().find(|d| d["model"] == model && d["pole_s"].as_f64() == Some(pole)).and_then(|d| d["M"].as_f64())
-    };
-    let rel = |v: f64, published: f64| 100.0 * (v - published) / published;
-    let four = match m("4-state", -0.015) {
-        Some(v) => format!("The 4-state M at −0.015 is {v:.4e}, {:+.1} % from the source's ≈ 0.0011", rel(v, 0.0011)),
-        None => "The 4-state design at −0.015 gave no M".to_string(),
-    };
-    let five = match (m("5-state", -0.238), m("5-state", -0.02)) {
-        (Some(a), Some(b)) => format!("the 5-state M is {a:.4e} at −0.238 and {b:.4e} at −0.02, against the source's ≈ 1.0"),
-        _ => "the 5-state designs gave no M".to_string(),
-    };
-    format!("{four}; {five} (M = Π|pᵢ|/N(0) for a SISO loop; see docs/thermal.md).")
-}
-
-#[cfg(test)]
-mod sentence_tests {
-    use super::source_sentence;
-
-    #[test]
-    fn the_source_sentence_states_the_computed_m_not_a_fixed_claim() {
-        let v = serde_json::json!([
-            {"model": "4-state", "pole_s": -0.015, "M": 0.00106},
-            {"model": "5-state", "pole_s": -0.238, "M": 1.02},
-            {"model": "5-state", "pole_s": -0.02, "M": 4.2e-6},
-        ]);
-        let s = source_sentence(&v);
-        // (0.00106 − 0.0011) / 0.0011 = −3.6 %.
-        assert!(s.contains("1.0600e-3") && s.contains("-3.6 %") && s.contains("1.0200e0") && s.contains("4.2000e-6"), "{s}");
-        assert!(source_sentence(&serde_json::json!([])).contains("gave no M"));
+    fn pid(&self) -> Result<control::Pid> {
+        Ok(self.pid.clone())
+    }
+    fn placement(&self) -> Result<(control::Placement, String)> {
+        Ok((self.placement.clone(), "best generaliser".into()))
     }
 }

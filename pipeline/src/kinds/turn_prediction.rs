@@ -56,6 +56,10 @@ pub struct DataSection {
     pub tune: Vec<String>,
     /// Held-out G-code (other model families) the report scores on.
     pub test: Vec<String>,
+    /// Also train and tune once per slicer of the test files without that
+    /// slicer's files and score its test files (stage `loso`; default false).
+    #[serde(default)]
+    pub leave_one_slicer_out: bool,
 }
 
 /// `[task]`; defaults ([`Task::default`]): H = 16, 32, 64 and a 10 mm corner window.
@@ -204,6 +208,13 @@ struct EvalStage {
     seed: u64,
 }
 
+/// Parameters of the `loso` stage: the training stage's, and the held-out files.
+#[derive(Debug, Clone, Serialize)]
+struct LosoStage {
+    train: TrainStage,
+    test: Vec<String>,
+}
+
 /// Parameters of the `export` stage.
 #[derive(Debug, Clone, Serialize)]
 struct ExportStage {
@@ -252,36 +263,32 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let tune_labels: Vec<String> = tune_files.iter().map(|p| label(spec, p)).collect();
     let test_labels: Vec<String> = test_files.iter().map(|p| label(spec, p)).collect();
 
+    let loso_train = TrainStage { task, settings, files: train_labels.clone(), tune: tune_labels, blocks: s.downstream.blocks.clone() };
     let mut stages = vec![];
     let tf = train_files.clone();
     let tuf = tune_files.clone();
     let mut read_for_training = train_files.clone();
     read_for_training.extend(tune_files.iter().cloned());
     stages.push(
-        Stage::typed(
-            "train",
-            2,
-            TrainStage { task, settings, files: train_labels.clone(), tune: tune_labels, blocks: s.downstream.blocks.clone() },
-            move |input, p: &TrainStage| {
-                let mut data = vec![];
-                for (path, name) in tf.iter().zip(&p.files) {
-                    data.push(moves_of(&input.file(path)?, name)?);
-                }
-                let mut tune = vec![];
-                for (path, name) in tuf.iter().zip(&p.tune) {
-                    tune.push(moves_of(&input.file(path)?, name)?);
-                }
-                let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
-                let model = evaluate::train_and_tune(&data, &tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
-                let bpk = model.network()?.to_burnpack(&[])?;
-                Ok(StageOutput::default()
-                    .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
-                    .add("turn-model.bpk", "application/octet-stream", bpk)
-                    .metric("rows", model.rows as f64)
-                    .metric("junctions", model.junctions as f64)
-                    .metric("weight_bytes", model.weight_bytes() as f64))
-            },
-        )?
+        Stage::typed("train", 2, loso_train.clone(), move |input, p: &TrainStage| {
+            let mut data = vec![];
+            for (path, name) in tf.iter().zip(&p.files) {
+                data.push(moves_of(&input.file(path)?, name)?);
+            }
+            let mut tune = vec![];
+            for (path, name) in tuf.iter().zip(&p.tune) {
+                tune.push(moves_of(&input.file(path)?, name)?);
+            }
+            let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
+            let model = evaluate::train_and_tune(&data, &tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
+            let bpk = model.network()?.to_burnpack(&[])?;
+            Ok(StageOutput::default()
+                .add("turn-model.json", "application/json", turnnet::model_to_json(&model)?)
+                .add("turn-model.bpk", "application/octet-stream", bpk)
+                .metric("rows", model.rows as f64)
+                .metric("junctions", model.junctions as f64)
+                .metric("weight_bytes", model.weight_bytes() as f64))
+        })?
         .reading(read_for_training),
     );
     let tf = test_files.clone();
@@ -291,19 +298,22 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     stages.push(
         Stage::typed(
             "eval",
-            2,
-            EvalStage { train: train_labels, files: test_labels, blocks: s.downstream.blocks.clone(), seed: s.experiment.seed },
+            3,
+            EvalStage { train: train_labels, files: test_labels.clone(), blocks: s.downstream.blocks.clone(), seed: s.experiment.seed },
             move |input, p: &EvalStage| {
                 let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
                 let mut train = vec![];
                 for (path, name) in trf.iter().zip(&p.train) {
                     train.push(junctions_of(&input.file(path)?, name)?);
                 }
-                let mut data = vec![];
+                let (mut data, mut slicers) = (vec![], vec![]);
                 for (path, name) in tf.iter().zip(&p.files) {
-                    data.push((name.clone(), moves_of(&input.file(path)?, name)?));
+                    let bytes = input.file(path)?;
+                    slicers.push(fdmlab_datasets::turns::slicer_of_bytes(&bytes));
+                    data.push((name.clone(), moves_of(&bytes, name)?));
                 }
-                let (summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks, &model.task.horizons, p.seed)?;
+                let (mut summary, files) = evaluate::evaluate(&data, &model, &train, &p.blocks, &model.task.horizons, p.seed)?;
+                summary.slicers = evaluate::by_group(&files, &slicers, p.seed);
                 let mut out = StageOutput::default().add_json("eval.json", &summary)?.add_json("files.json", &files)?;
                 for g in &summary.gains {
                     let b = if g.blocks == evaluate::MARLIN_BLOCKS { String::new() } else { format!("_b{}", g.blocks) };
@@ -354,22 +364,65 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         })?
         .after(&["train"]),
     );
+    let loso = s.data.leave_one_slicer_out;
+    if loso {
+        let grouped = |paths: &[PathBuf], names: &[String], input: &crate::stage::StageInput<'_>| -> Result<Vec<(String, String, Vec<Move>)>> {
+            let mut out = vec![];
+            for (path, name) in paths.iter().zip(names) {
+                let bytes = input.file(path)?;
+                out.push((name.clone(), fdmlab_datasets::turns::slicer_of_bytes(&bytes).to_string(), moves_of(&bytes, name)?));
+            }
+            Ok(out)
+        };
+        let (trf, tuf, tef) = (train_files.clone(), tune_files.clone(), test_files.clone());
+        let mut all = train_files.clone();
+        all.extend(tune_files.iter().cloned());
+        all.extend(test_files.iter().cloned());
+        let p = LosoStage { train: loso_train, test: test_labels.clone() };
+        stages.push(
+            Stage::typed("loso", 1, p, move |input, p: &LosoStage| {
+                let t = &p.train;
+                let held = evaluate::leave_one_group_out(
+                    &grouped(&trf, &t.files, input)?,
+                    &grouped(&tuf, &t.tune, input)?,
+                    &grouped(&tef, &p.test, input)?,
+                    &t.task,
+                    &t.settings,
+                    &t.blocks,
+                )?;
+                let mut out = StageOutput::default().add_json("loso.json", &held)?;
+                for g in &held {
+                    for h in &g.summary.horizons {
+                        for m in h.methods.iter().filter(|m| m.method == evaluate::NETWORK || m.method == fdmlab_models::turns::contenders::PREVIOUS_LAYER) {
+                            out = out
+                                .metric(&format!("loso_{}_{}_mae_h{}", g.group, m.method, h.horizon), m.mae_deg)
+                                .metric(&format!("loso_{}_{}_f1_h{}", g.group, m.method, h.horizon), m.f1);
+                        }
+                    }
+                }
+                Ok(out)
+            })?
+            .reading(all),
+        );
+    }
     let title = format!("fdmlab {}", s.experiment.name);
     stages.push(
-        Stage::typed("report", 1, title, |input, title: &String| {
+        Stage::typed("report", 2, (title, loso), |input, (title, loso): &(String, bool)| {
             let model = turnnet::model_from_json(&input.output("train", "turn-model.json")?, "turn-model.json")?;
             let summary: evaluate::Summary = input.json("eval", "eval.json")?;
             let files: Vec<FileEval> = input.json("eval", "files.json")?;
+            let held: Vec<evaluate::HeldOutGroup> = if *loso { input.json("loso", "loso.json")? } else { vec![] };
             let report = fdmlab_reports::turns::report(&fdmlab_reports::turns::TurnsView {
                 title,
                 model: &model,
                 summary: &summary,
                 files: &files,
                 downstream: &summary.downstream,
+                held_out_slicers: &held,
             });
             StageOutput::default().add_report(&report)
         })?
-        .after(&["train", "eval"]),
+        .after(if loso { &["train", "eval", "loso"][..] } else { &["train", "eval"][..] }),
     );
     Ok(stages)
 }
