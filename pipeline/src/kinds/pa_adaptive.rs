@@ -21,6 +21,21 @@ use std::collections::BTreeMap;
 /// Generator name recorded with the twin's cells.
 pub const GENERATOR: &str = "fdmlab-adaptive-twin/1";
 
+/// The kind's keys (docs/limits.md copies this table):
+///
+/// | key | default | limits |
+/// |---|---|---|
+/// | `twin.material`, `twin.extruder` | — | a material and extruder the extrusion twin knows |
+/// | `twin.hotend_c`, `twin.layer_mm`, `twin.nozzle_setting_mm` | —, —, 0.4 | the extrusion twin's `Conditions` check |
+/// | `twin.shear_thinning_per_mm3_s` | 0.016 | [0, 0.045) per mm³/s |
+/// | `twin.speeds` | — | ≥ 2 values within 21–1000 mm/s (above the 20 mm/s slow segment) |
+/// | `twin.accels` | — | ≥ 2 values within 10–100,000 mm/s² |
+/// | `fit.samples` | 200 | 20–10,000 |
+/// | `lines.noise_sd_mm3_s` | 0.02 | (0, 1] mm³/s |
+/// | `design.seeds` | — | ≥ 1, none equal to `experiment.seed` (held out) |
+/// | `design.samples` | 100 | 20–10,000 |
+/// | `design.candidate_speeds`, `design.candidate_accels` | 50–200 step 25; 1000, 1414, 2000, 2828, 4000 | non-empty, positive |
+/// | `export.formats` | all four | `orca`, `orca-profile`, `kalico`, `klipper-adaptive` |
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct AdaptiveSpec {
