@@ -3,6 +3,7 @@
 //! files, the CLI or specs: it takes arrays and structs and returns results, and
 //! every result exposes its parameters and residuals as plain data (serde).
 
+pub mod adaptive;
 pub mod discrepancy;
 pub mod doe;
 pub mod error;

@@ -8,6 +8,7 @@ pub mod discrepancy;
 mod error;
 pub mod hbot;
 pub mod pa;
+pub mod pa_adaptive;
 mod plot;
 pub mod render;
 mod table;

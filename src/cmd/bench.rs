@@ -42,6 +42,8 @@ pub enum BenchCommand {
         #[arg(long)]
         torch: Option<PathBuf>,
     },
+    /// Adaptive pressure advance: fitting the K(flow, accel) model vs `ka train`'s network on the same cells.
+    KaFit(super::ka_adaptive::BenchArgs),
 }
 
 /// Dispatch a bench.
@@ -57,6 +59,7 @@ pub fn bench(cmd: BenchCommand, ctx: &Ctx) -> anyhow::Result<()> {
         BenchCommand::TurnsTrain(a) => super::turns_net::bench(a, ctx),
         BenchCommand::TurnsEval(a) => super::turns_bench::eval_bench(a, ctx),
         BenchCommand::Pa { epochs, torch } => super::pa::bench(ctx, epochs.max(1), torch),
+        BenchCommand::KaFit(a) => super::ka_adaptive::bench(a, ctx),
     }
 }
 

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod discrepancy;
 pub mod hbot;
+pub mod ka_adaptive;
 pub mod mlflow;
 pub mod pa;
 pub mod remote;
@@ -231,4 +232,20 @@ pub fn time_c_program(header_name: &str, header: impl AsRef<[u8]>, main_c: &str,
         if ok { std::process::Command::new(&exe).output().ok().and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse::<f64>().ok()) } else { None };
     let _ = std::fs::remove_dir_all(&dir);
     Ok(out)
+}
+
+/// The bytes of a stored `model.json`: a run's last one, or a blob hash.
+pub fn model_blob(store: &fdmlab_pipeline::Store, id: &str) -> anyhow::Result<(Vec<u8>, fdmlab_pipeline::Hash)> {
+    let hash = match fdmlab_pipeline::runs::find_opt(store, id)? {
+        Some(run) => run
+            .stages
+            .iter()
+            .rev()
+            .flat_map(|s| s.outputs.iter())
+            .find(|o| o.name == "model.json")
+            .map(|o| o.hash.clone())
+            .ok_or_else(|| fdmlab_pipeline::Error::bad_input(format!("run {} has no model.json", run.id)))?,
+        None => store.resolve(id)?,
+    };
+    Ok((store.get(&hash)?, hash))
 }

@@ -8,7 +8,7 @@ use fdmlab_datasets::pa::calibration::{self, Calibration, Firmware, Pattern, Pri
 use fdmlab_datasets::pa::export::{self, ExportFormat, ExportOptions};
 use fdmlab_datasets::pa::matrix::{MatrixManifest, MATRIX_SCHEMA};
 use fdmlab_datasets::pa::model::{parse_assignments, KaModel, MODEL_SCHEMA};
-use fdmlab_datasets::pa::{grid, scores, table};
+use fdmlab_datasets::pa::{grid, kflow, scores, table};
 use fdmlab_models::extrusion::{GridConfig, LinePattern};
 use fdmlab_models::nets::{TrainParams, ValidTrainParams};
 use fdmlab_models::regress::mlp::MlpModel;
@@ -192,8 +192,12 @@ pub fn gcode(cmd: GcodeCommand, ctx: &Ctx) -> anyhow::Result<()> {
 }
 
 /// `ka scores` on a matrix manifest: best K ± sd and Kendall's W per (flow, acceleration) cell.
-fn matrix_scores(mm: &MatrixManifest, file: &Path, scale: f64, ctx: &Ctx) -> anyhow::Result<()> {
+fn matrix_scores(mm: &MatrixManifest, file: &Path, scale: f64, cells_out: Option<&Path>, ctx: &Ctx) -> anyhow::Result<()> {
     let cells = scores::ingest_matrix(&super::read_input(file)?, &file.display().to_string(), mm, scale)?;
+    if let Some(out) = cells_out {
+        let csv = kflow::cells_csv(&kflow::scored_cells(&cells, mm), None, None);
+        write_file_atomic(out, csv.as_bytes())?;
+    }
     let value = serde_json::json!({
         "cells": cells.iter().map(|c| serde_json::json!({
             "pattern": c.pattern, "speed_mm_s": c.speed_mm_s, "accel_mm_s2": c.accel_mm_s2, "flow_mm3_s": c.flow_mm3_s,
@@ -269,6 +273,9 @@ pub enum KaCommand {
         /// Top of the score scale.
         #[arg(long, default_value_t = 10.0)]
         scale: f64,
+        /// Matrix only: also write the cells CSV `ka fit` reads.
+        #[arg(long)]
+        cells: Option<PathBuf>,
     },
     /// Score a calibration print on the extrusion twin (simulated raters) and write a scores CSV.
     SimulateScores {
@@ -295,6 +302,8 @@ pub enum KaCommand {
         #[arg(long)]
         set: String,
     },
+    #[command(flatten)]
+    Adaptive(super::ka_adaptive::AdaptiveCommand),
 }
 
 /// Arguments of `fdmlab ka train`.
@@ -323,18 +332,7 @@ fn cv_json(folds: usize, rows: usize, models: &[fdmlab_models::regress::cv::Mode
 
 /// Resolve a model: a run (its last `model.json` output) or a blob hash.
 pub fn load_model(store: &Store, id: &str) -> anyhow::Result<(KaModel, Hash)> {
-    let hash = match runs::find_opt(store, id)? {
-        Some(run) => run
-            .stages
-            .iter()
-            .rev()
-            .flat_map(|s| s.outputs.iter())
-            .find(|o| o.name == "model.json")
-            .map(|o| o.hash.clone())
-            .ok_or_else(|| Error::bad_input(format!("run {} has no model.json", run.id)))?,
-        None => store.resolve(id)?,
-    };
-    let bytes = store.get(&hash)?;
+    let (bytes, hash) = super::model_blob(store, id)?;
     let model = KaModel::from_json(&bytes, &format!("blob {}", hash.0))?;
     Ok((model, hash))
 }
@@ -356,7 +354,8 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             ctx.emit(&value, || format!("wrote {} grid rows (seed {seed}) to {}; largest |K_A − K_true| = {max_dev:.4} s\n", rows.len(), output.display()));
             Ok(())
         }
-        KaCommand::Scores { manifest, scores: file, scale } => {
+        KaCommand::Adaptive(c) => super::ka_adaptive::run(c, ctx),
+        KaCommand::Scores { manifest, scores: file, scale, cells } => {
             let mb = super::read_input(&manifest)?;
             let bad_json = |e: serde_json::Error| Error::Input {
                 file: manifest.display().to_string(),
@@ -368,7 +367,14 @@ pub fn ka(cmd: KaCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let is_matrix = serde_json::from_slice::<serde_json::Value>(&mb).map_err(bad_json)?["schema"] == MATRIX_SCHEMA;
             if is_matrix {
                 let mm: MatrixManifest = serde_json::from_slice(&mb).map_err(bad_json)?;
-                return matrix_scores(&mm, &file, scale, ctx);
+                return matrix_scores(&mm, &file, scale, cells.as_deref(), ctx);
+            }
+            if cells.is_some() {
+                return Err(Error::bad_input(format!(
+                    "--cells needs a matrix manifest (`gcode pa --speeds … --accels …`); {} is a single print's",
+                    manifest.display()
+                ))
+                .into());
             }
             let m: calibration::Manifest = serde_json::from_slice(&mb).map_err(bad_json)?;
             let s = scores::ingest(&super::read_input(&file)?, &file.display().to_string(), &m, scale)?;
@@ -515,9 +521,25 @@ pub struct ExportKaArgs {
 pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
     let ExportCommand::Ka(a) = cmd;
     let store = ctx.store()?;
+    let (bytes, hash) = super::model_blob(&store, &a.model)?;
+    if kflow::is_kflow(&bytes) {
+        // K(flow, accel) model (`ka fit`, pa-adaptive): flows and accelerations default to its cells'.
+        let art = kflow::KflowArtifact::from_json(&bytes, &format!("blob {}", hash.0))?;
+        let (flows, accels) = kflow::cell_grid(&art.model);
+        let mut opts = export_options(&a, &hash)?;
+        opts.flows_mm3_s = a.flows.clone().unwrap_or(flows);
+        opts.accels_mm_s2 = a.accels.clone().unwrap_or(accels);
+        return write_export(&a, &kflow::export(&art, ExportFormat::from(a.format), &opts)?, &hash, ctx);
+    }
     let (m, hash) = load_model(&store, &a.model)?;
-    let format = ExportFormat::from(a.format);
-    let opts = ExportOptions {
+    let text = export::export(&m, ExportFormat::from(a.format), &export_options(&a, &hash)?)?;
+    write_export(&a, &text, &hash, ctx)
+}
+
+/// The export options of `export ka`'s arguments.
+fn export_options(a: &ExportKaArgs, hash: &Hash) -> anyhow::Result<ExportOptions> {
+    let d = ExportOptions::default();
+    Ok(ExportOptions {
         material_column: a.material_column.clone(),
         temp_column: a.temp_column.clone(),
         temp_step_c: a.temp_step,
@@ -526,14 +548,13 @@ pub fn export_cmd(cmd: ExportCommand, ctx: &Ctx) -> anyhow::Result<()> {
         label: format!("model {}", &hash.0[..12]),
         slow_mm_s: a.slow_speed,
         filament_mm: a.filament,
-        ..ExportOptions::default()
-    };
-    let opts = ExportOptions {
-        flows_mm3_s: a.flows.clone().unwrap_or(opts.flows_mm3_s.clone()),
-        accels_mm_s2: a.accels.clone().unwrap_or(opts.accels_mm_s2.clone()),
-        ..opts
-    };
-    let text = export::export(&m, format, &opts)?;
+        flows_mm3_s: a.flows.clone().unwrap_or(d.flows_mm3_s),
+        accels_mm_s2: a.accels.clone().unwrap_or(d.accels_mm_s2),
+    })
+}
+
+/// Write an export to `-o` (atomically) or stdout.
+fn write_export(a: &ExportKaArgs, text: &str, hash: &Hash, ctx: &Ctx) -> anyhow::Result<()> {
     match &a.output {
         Some(p) => {
             write_file_atomic(p, text.as_bytes())?;

@@ -11,6 +11,7 @@ mod discrepancy_mismatch;
 mod foundation;
 mod hbot;
 mod mlflow;
+mod orca_pchip;
 mod pa;
 mod reports;
 mod runs_table;

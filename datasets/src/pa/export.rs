@@ -208,13 +208,9 @@ pub fn export(model: &KaModel, format: ExportFormat, opts: &ExportOptions) -> Re
         ExportFormat::Marlin => marlin(model, opts),
         ExportFormat::Klipper => klipper(model, opts),
         ExportFormat::Reprap => reprap(model, opts),
-        ExportFormat::Orca => Ok(adaptive_table(model, opts)?.orca_rows()),
-        ExportFormat::OrcaProfile => Ok(adaptive_table(model, opts)?.orca_profile()),
-        ExportFormat::KlipperAdaptive => {
-            let (w, h) = line_geometry(opts);
-            adaptive_table(model, opts)?.klipper_macro(w, h, &format!("fdmlab adaptive K_A ({}) for Klipper; fixed inputs: {}", opts.label, fixed_text(opts)))
+        ExportFormat::Orca | ExportFormat::OrcaProfile | ExportFormat::KlipperAdaptive | ExportFormat::Kalico => {
+            render_adaptive(&adaptive_table(model, opts)?, format, opts)
         }
-        ExportFormat::Kalico => kalico(model, opts),
         ExportFormat::CHeader => c_header(model, opts),
         ExportFormat::Json => json(model, opts),
     }
@@ -333,7 +329,7 @@ fn reprap(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError>
 
 /// Line width and layer height the flow refers to: `1.2 × nozzle_setting_mm`
 /// (or `nozzle_mm`) and `layer_mm` from the fixed inputs (defaults 0.48, 0.2 mm).
-fn line_geometry(opts: &ExportOptions) -> (f64, f64) {
+pub fn line_geometry(opts: &ExportOptions) -> (f64, f64) {
     let get = |name: &str| opts.fixed.iter().find(|(k, _)| k.eq_ignore_ascii_case(name)).and_then(|(_, v)| v.parse::<f64>().ok());
     (1.2 * get("nozzle_setting_mm").or(get("nozzle_mm")).unwrap_or(0.4), get("layer_mm").unwrap_or(0.2))
 }
@@ -378,11 +374,26 @@ fn adaptive_table(model: &KaModel, opts: &ExportOptions) -> Result<AdaptiveTable
     })
 }
 
+/// The adaptive formats (orca, orca-profile, klipper-adaptive, kalico) of a K(flow,
+/// acceleration) table, whichever model filled it; any other format is refused.
+pub fn render_adaptive(t: &AdaptiveTable, format: ExportFormat, opts: &ExportOptions) -> Result<String, DatasetError> {
+    check_text("label", &opts.label)?;
+    match format {
+        ExportFormat::Orca => Ok(t.orca_rows()),
+        ExportFormat::OrcaProfile => Ok(t.orca_profile()),
+        ExportFormat::KlipperAdaptive => {
+            let (w, h) = line_geometry(opts);
+            t.klipper_macro(w, h, &format!("fdmlab adaptive K_A ({}) for Klipper; fixed inputs: {}", opts.label, fixed_text(opts)))
+        }
+        ExportFormat::Kalico => kalico(t, opts),
+        other => Err(DatasetError::Refused(format!("{other:?} is not an adaptive format (orca, orca-profile, kalico, klipper-adaptive)"))),
+    }
+}
+
 /// Kalico's tanh model fitted to K over the table's flows at its highest
 /// acceleration (Kalico's PA test runs at the `[printer]` acceleration, set
 /// to the highest used while extruding; the model has no acceleration input).
-fn kalico(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
-    let t = adaptive_table(model, opts)?;
+fn kalico(t: &AdaptiveTable, opts: &ExportOptions) -> Result<String, DatasetError> {
     let top = t.accels_mm_s2[t.accels_mm_s2.len() - 1];
     let pts: Vec<(f64, f64)> = t.rows.iter().filter(|r| r[2] == top).map(|r| (r[1], r[0])).collect();
     let (w, h) = line_geometry(opts);

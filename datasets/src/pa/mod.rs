@@ -7,6 +7,7 @@ pub mod csv;
 pub mod digits;
 pub mod export;
 pub mod grid;
+pub mod kflow;
 pub mod matrix;
 pub mod model;
 pub mod scores;

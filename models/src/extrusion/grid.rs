@@ -96,13 +96,23 @@ pub fn k_values(start: f64, end: f64, step: f64) -> Vec<f64> {
 pub fn calibrate(c: &Conditions, pattern: &LinePattern, raters: &[Rater], rng: &mut crate::rng::Rng) -> Result<BestK, ModelError> {
     c.check()?;
     let k_true = c.true_k_s();
-    let (start, end, step) = coarse_range(c.extruder);
-    let coarse = best_k(&simulate_print(pattern, k_true, &k_values(start, end, step), raters, rng)?)?;
+    calibrate_by(coarse_range(c.extruder), |k, rng| simulate_print(pattern, k_true, k, raters, rng), rng)
+}
+
+/// The two-stage calibration of [`calibrate`] for any print: `coarse` is (start, end, step)
+/// of the first print, `print(K values, rng)` scores one print.
+pub fn calibrate_by(
+    coarse: (f64, f64, f64),
+    mut print: impl FnMut(&[f64], &mut crate::rng::Rng) -> Result<super::ScoreTable, ModelError>,
+    rng: &mut crate::rng::Rng,
+) -> Result<BestK, ModelError> {
+    let (start, end, step) = coarse;
+    let coarse = best_k(&print(&k_values(start, end, step), rng)?)?;
     let fine_step = step / 10.0;
     let lo = (coarse.k - 2.0 * step).max(0.0);
     let lo = (lo / fine_step).round() * fine_step;
     let fine_k = k_values(lo, lo + 4.0 * step, fine_step);
-    best_k(&simulate_print(pattern, k_true, &fine_k, raters, rng)?)
+    best_k(&print(&fine_k, rng)?)
 }
 
 /// Measure the whole grid. Raters are drawn once (stream 0, the same people for every

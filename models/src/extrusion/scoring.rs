@@ -219,9 +219,15 @@ fn typical_step(k: &[f64]) -> f64 {
 
 /// Score every line of a print with K_A values `k` for a plant of constant `k_true_s`.
 pub fn simulate_print(pattern: &super::LinePattern, k_true_s: f64, k: &[f64], raters: &[Rater], rng: &mut crate::rng::Rng) -> Result<ScoreTable, ModelError> {
+    score_print(k, |ka| super::line_defect(pattern, k_true_s, ka), raters, rng)
+}
+
+/// Score every line of a print with K_A values `k`, the line's defect given by `defect(K_A)`
+/// (any plant: the linear one of [`simulate_print`], the nonlinear one of `crate::adaptive`).
+pub fn score_print(k: &[f64], defect: impl Fn(f64) -> Result<f64, ModelError>, raters: &[Rater], rng: &mut crate::rng::Rng) -> Result<ScoreTable, ModelError> {
     let mut scores = Vec::with_capacity(k.len());
     for &ka in k {
-        let d = super::line_defect(pattern, k_true_s, ka)?;
+        let d = defect(ka)?;
         scores.push(raters.iter().map(|r| r.score(d, rng).map(Some)).collect::<Result<_, _>>()?);
     }
     Ok(ScoreTable { k: k.to_vec(), scores })

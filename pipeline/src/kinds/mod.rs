@@ -7,6 +7,7 @@ use crate::stage::Stage;
 
 pub mod discrepancy;
 pub mod hbot;
+pub mod pa_adaptive;
 pub mod pressure_advance;
 pub mod thermal;
 pub mod thermal_grid;
@@ -21,6 +22,7 @@ pub const KINDS: &[(&str, Planner)] = &[
     ("thermal-grid", thermal_grid::plan),
     ("hbot-taguchi", hbot::plan),
     ("pressure-advance", pressure_advance::plan),
+    ("pa-adaptive", pa_adaptive::plan),
     ("discrepancy", discrepancy::plan),
     ("turn-prediction", turn_prediction::plan),
 ];

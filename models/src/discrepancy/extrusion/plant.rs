@@ -57,7 +57,7 @@ impl ExtrusionParams {
 
     /// dQ/dt = (Q_feed − σ·V(Q) − Q) / V'(Q); V'(Q) is kept ≥ K/10 so a strongly
     /// shear-thinning curve cannot turn the storage negative.
-    fn rate(&self, q: f64, feed: f64) -> f64 {
+    pub(crate) fn rate(&self, q: f64, feed: f64) -> f64 {
         let dv = (self.k_s + 2.0 * self.k2_s2_per_mm3 * q).max(0.1 * self.k_s);
         (feed - self.slip_per_s * self.stored_mm3(q) - q) / dv
     }
