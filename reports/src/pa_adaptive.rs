@@ -123,7 +123,7 @@ pub fn report(title: &str, v: &AdaptiveView) -> Result<Report, ModelError> {
     r.heading("Residuals");
     let rc = v.residuals;
     r.paragraph(format!(
-        "Cells' residuals against their own noise: χ² = {:.2} on {} dof, p = {:.3} — {}; worst cell at {} mm³/s, {} mm/s² (|z| = {:.2}); RMS {:.2} % of K. Outliers set aside: {}.",
+        "Cells' residuals against their own noise: χ² = {:.2} on {:.2} dof, p = {:.3} — {}; worst cell at {} mm³/s, {} mm/s² (|z| = {:.2}); RMS {:.2} % of K. Outliers set aside: {}.",
         rc.chi2,
         rc.dof,
         rc.p_value,
