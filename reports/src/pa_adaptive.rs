@@ -78,7 +78,7 @@ fn cells_table(v: &AdaptiveView) -> Result<Table, ModelError> {
 
 fn design_table(d: &DesignResult) -> Table {
     let mut t = Table::new(
-        "Model error vs number of prints: the grid in matrix order vs patterns chosen where the model is least certain (RMS and largest |K − K_twin| over the 35 candidate patterns, mean over the held-out seeds)",
+        "Model error vs number of prints: the grid in matrix order vs patterns chosen by `ka next` to cut K's variance over the domain most (RMS and largest |K − K_twin| over the 35 candidate patterns, mean over the held-out seeds)",
         ["prints", "grid RMS (s)", "chosen RMS (s)", "grid max (s)", "chosen max (s)"],
     );
     for r in &d.rows {

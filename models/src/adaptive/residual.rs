@@ -5,9 +5,10 @@
 //! 1. Do the cells' residuals exceed their own measurement noise? χ² of the
 //!    standardised residuals (own sd with [`super::model::NOISE_FLOOR`], no fitted
 //!    extra sd) on n − tr H degrees of freedom ([`KModel::effective_parameters`]: the
-//!    prior shrinks the free coefficients, so each counts less than one; with 12 cells
-//!    and 15 shape coefficients, counting whole coefficients left 1 dof); p < 0.01 says the
-//!    model's form misses something, and the cell with the largest |z| is named. Cells
+//!    prior shrinks the free coefficients, so each counts less than one; on the twin's
+//!    12-pattern grid 14 of the 15 coefficients are free, whole counting gave 12 − 14
+//!    clamped to 1 dof, n − tr H gives 1.16: the check has little power on 12 cells);
+//!    p < 0.01 says the model's form misses something, and the cell with the largest |z| is named. Cells
 //!    the fit set aside as outliers (`KModel::outliers`) are listed, never dropped silently.
 //! 2. What does a constant-K plant miss on the printed lines? Lines of the matrix
 //!    printed on the twin with the model's K_A, their outflow read by a flow sensor
