@@ -234,7 +234,8 @@ pub struct DesignResult {
 impl Default for DesignStudy {
     /// The 12-pattern grid (speeds 50/100/150/200 mm/s × 1k/2k/4k mm/s², Orca's
     /// guide); candidates every 25 mm/s from 50 to 200 × 1000, 1414, 2000, 2828, 4000 mm/s²
-    /// (35, the grid among them); development seeds 1–3; 100 samples per fit.
+    /// (35, the grid among them); development seeds 1–3 ([`DEV_SEEDS`]); 100 samples per fit; the
+    /// chosen sequence starts at the centre ([`Start::Centre`], chosen on the development seeds).
     fn default() -> Self {
         DesignStudy {
             grid_speeds_mm_s: vec![50.0, 100.0, 150.0, 200.0],
@@ -410,7 +411,8 @@ mod tests {
         }
     }
 
-    // Seeds 101–104 are held out: development used 1–3, the bundled spec 7, 31, 32.
+    // Seeds 101, 102 are held out for the recovery test, 5101–5104 (EVAL_SEEDS) for the design
+    // table: development used 1–3 (DEV_SEEDS), the bundled spec 7, 31, 32.
 
     #[test]
     fn model_recovers_the_twin_shape_on_held_out_seeds() {
