@@ -257,8 +257,7 @@ pub fn tune_previous_layer(paths: &[&[Junction]], tasks: &[HorizonTask]) -> (Pre
         for j in paths {
             let matches = previous_layer_matches(j, j.len(), settings);
             for task in tasks {
-                // Angles only: the MAE needs no corner labels (each a scan of
-                // `corner_window_mm` of path, most of the tuner's time).
+                // Angles only: the MAE needs no corner labels.
                 for i in 0..task.count(j.len()) {
                     let predicted = matched_target(task, &matches, i).map_or(0.0, |t| j[t].turn_deg);
                     err += (predicted - j[i + task.horizon].turn_deg).abs();
