@@ -382,12 +382,13 @@ impl KModel {
             let b = p.solve(&Problem::gradient_term(&x, &w, &y, &mu, &prior_sd), &mu)?;
             Ok((p, w, b))
         };
-        let (_, _, b0) = map(0.0)?;
-        // Extra sd: the residual variance beyond the cells' own, over the free coefficients' dof.
-        let free = b0.iter().zip(&hi).filter(|(b, h)| **b < **h).count();
-        let n = cells.len();
-        let r2: f64 = x.chunks(spec.len()).zip(&y).zip(&own).map(|((row, yi), s)| (yi - dot(row, &b0)).powi(2) - s * s).sum();
-        m.extra_sd = if n > free { (r2 / (n - free) as f64).max(0.0).sqrt() } else { 0.0 };
+        let (_, w0, b0) = map(0.0)?;
+        // Extra sd: the residual variance beyond the cells' own, over the fit's effective dof
+        // n − tr H (as the residual χ² counts them, [`KModel::effective_parameters`]).
+        let rows: Vec<Vec<f64>> = x.chunks(spec.len()).map(<[f64]>::to_vec).collect();
+        let dof = cells.len() as f64 - hat_trace(&rows, &w0, &prior_sd, &free_columns(&b0, &hi))?;
+        let r2: f64 = rows.iter().zip(&y).zip(&own).map(|((row, yi), s)| (yi - dot(row, &b0)).powi(2) - s * s).sum();
+        m.extra_sd = if dof > 0.0 { (r2 / dof).max(0.0).sqrt() } else { 0.0 };
         let (problem, w, beta) = map(m.extra_sd)?;
         let mut rng = crate::rng::seeded(settings.seed, 0);
         let mut draws = Vec::with_capacity(samples);
@@ -445,24 +446,10 @@ impl KModel {
     pub fn effective_parameters(&self) -> Result<f64, ModelError> {
         let mut spec = shape_columns();
         spec.extend(self.terms.columns());
-        let free: Vec<usize> = (0..spec.len()).filter(|&j| !(self.beta[j] == 0.0 && spec[j].2 == 0.0)).collect();
+        let (prior_sd, hi): (Vec<f64>, Vec<f64>) = spec.iter().map(|c| (c.1, c.2)).unzip();
         let rows: Vec<Vec<f64>> = self.cells.iter().map(|c| self.row(&c.query())).collect::<Result<_, _>>()?;
         let w: Vec<f64> = self.cells.iter().map(|c| own_sd(c).powi(-2)).collect();
-        let p = free.len();
-        let a = nalgebra::DMatrix::from_fn(p, p, |i, j| {
-            let (fi, fj) = (free[i], free[j]);
-            rows.iter().zip(&w).map(|(r, wi)| wi * r[fi] * r[fj]).sum::<f64>() + if i == j { spec[fi].1.powi(-2) } else { 0.0 }
-        });
-        let inv = a.try_inverse().ok_or_else(|| ModelError::Shape("singular normal matrix".to_string()))?;
-        // tr H = Σᵢ wᵢ x_Fᵢᵀ A⁻¹ x_Fᵢ.
-        Ok(rows
-            .iter()
-            .zip(&w)
-            .map(|(r, wi)| {
-                let x = nalgebra::DVector::from_iterator(p, free.iter().map(|&j| r[j]));
-                wi * x.dot(&(&inv * &x))
-            })
-            .sum())
+        hat_trace(&rows, &w, &prior_sd, &free_columns(&self.beta, &hi))
     }
 
     /// Upper bound of coefficient j (0 for the monotone and sign-constrained terms).
@@ -471,6 +458,29 @@ impl KModel {
         spec.extend(self.terms.columns());
         spec.get(j).map(|c| c.2).unwrap_or(f64::INFINITY)
     }
+}
+
+/// Coefficients not held at their sign bound (an upper bound of 0 reached).
+fn free_columns(beta: &[f64], hi: &[f64]) -> Vec<usize> {
+    (0..beta.len()).filter(|&j| beta[j] < hi[j]).collect()
+}
+
+/// tr H of the weighted ridge fit over the `free` columns: Σᵢ wᵢ x_Fᵢᵀ (X_FᵀWX_F + S_F⁻²)⁻¹ x_Fᵢ.
+fn hat_trace(rows: &[Vec<f64>], w: &[f64], prior_sd: &[f64], free: &[usize]) -> Result<f64, ModelError> {
+    let p = free.len();
+    let a = nalgebra::DMatrix::from_fn(p, p, |i, j| {
+        let (fi, fj) = (free[i], free[j]);
+        rows.iter().zip(w).map(|(r, wi)| wi * r[fi] * r[fj]).sum::<f64>() + if i == j { prior_sd[fi].powi(-2) } else { 0.0 }
+    });
+    let inv = a.try_inverse().ok_or_else(|| ModelError::Shape("singular normal matrix".to_string()))?;
+    Ok(rows
+        .iter()
+        .zip(w)
+        .map(|(r, wi)| {
+            let x = nalgebra::DVector::from_iterator(p, free.iter().map(|&j| r[j]));
+            wi * x.dot(&(&inv * &x))
+        })
+        .sum())
 }
 
 /// A cell's own sd of ln K: its best-K sd relative to K, with [`NOISE_FLOOR`].
