@@ -2,6 +2,7 @@
 //! readers, log and CSV parsers, score ingest, firmware/daemon export text.
 //! Parsers report the file, line/row and field of bad input.
 
+pub mod c_mlp;
 pub mod csv;
 pub mod discrepancy;
 pub mod error;

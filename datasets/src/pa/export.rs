@@ -8,7 +8,9 @@ use super::adaptive::{fit_kalico_tanh, AdaptiveTable};
 use super::calibration::{check_text, fmt_k};
 use super::model::KaModel;
 use super::table::Feature;
+use crate::c_mlp;
 use crate::DatasetError;
+use fdmlab_models::nets::{ka, Activation};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -410,10 +412,6 @@ fn kalico(t: &AdaptiveTable, opts: &ExportOptions) -> Result<String, DatasetErro
     Ok(fit.config(&note))
 }
 
-fn c_floats(v: impl Iterator<Item = f32>) -> String {
-    v.map(|x| format!("{x:e}f")).collect::<Vec<_>>().join(", ")
-}
-
 fn c_doubles(v: impl Iterator<Item = f64>) -> String {
     v.map(|x| format!("{x:e}")).collect::<Vec<_>>().join(", ")
 }
@@ -438,38 +436,14 @@ fn c_header(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetErro
     let spans = (0..n).map(|j| m.x_scale.unscale(j, 1.0) - m.x_scale.min[j]);
     let _ = writeln!(s, "static const double fdmlab_ka_x_span[{n}] = {{{}}};", c_doubles(spans));
     let _ = writeln!(s, "static const double fdmlab_ka_y_min = {:e}, fdmlab_ka_y_span = {:e};", m.y_scale.min[0], m.y_scale.unscale(0, 1.0) - m.y_scale.min[0]);
-    for (i, l) in m.weights.layers.iter().enumerate() {
-        let _ = writeln!(s, "static const float fdmlab_ka_w{i}[{}] = {{{}}};", l.w.len(), c_floats(l.w.iter().copied()));
-        let _ = writeln!(s, "static const float fdmlab_ka_b{i}[{}] = {{{}}};", l.b.len(), c_floats(l.b.iter().copied()));
-    }
-    let widest = m.weights.layers.iter().map(|l| l.outputs.max(l.inputs)).max().unwrap_or(1);
-    // One function per layer with its sizes as constants: contiguous weights,
-    // fixed trip counts and `restrict` let compilers vectorise the inner loop.
-    let acts = ["y[o] = y[o] > 0.0f ? y[o] : 0.0f;", "y[o] = y[o] > 0.0f ? y[o] : 0.0f;", "y[o] = 1.0f / (1.0f + expf(-y[o]));"];
-    let _ = writeln!(s, "\n/* Layer k: y = act(x W + b), W row-major [inputs][outputs]. */");
-    for (i, l) in m.weights.layers.iter().enumerate() {
-        let _ = writeln!(
-            s,
-            "static void fdmlab_ka_layer{i}(const float *restrict x, float *restrict y) {{\n  for (int o = 0; o < {no}; ++o) y[o] = fdmlab_ka_b{i}[o];\n  for (int i = 0; i < {ni}; ++i) {{\n    const float xi = x[i];\n    const float *wr = fdmlab_ka_w{i} + i * {no};\n    for (int o = 0; o < {no}; ++o) y[o] += xi * wr[o];\n  }}",
-            no = l.outputs,
-            ni = l.inputs
-        );
-        if let Some(act) = acts.get(i) {
-            let _ = writeln!(s, "  for (int o = 0; o < {}; ++o) {act}", l.outputs);
-        }
-        let _ = writeln!(s, "}}\n");
-    }
+    c_mlp::weights(&mut s, "fdmlab_ka", &m.weights.layers);
+    let widest = c_mlp::widest(&m.weights.layers);
+    c_mlp::layer_functions(&mut s, "fdmlab_ka", &m.weights.layers, &ka::activations(m.weights.layers.len().saturating_sub(1)));
     let _ = writeln!(s, "/* K_A for one raw (unscaled, one-hot encoded) input vector. */");
     let _ = writeln!(s, "static double fdmlab_ka_predict(const double x[FDMLAB_KA_INPUTS]) {{");
     let _ = writeln!(s, "  float a[{widest}], b[{widest}];");
     let _ = writeln!(s, "  for (int i = 0; i < FDMLAB_KA_INPUTS; ++i) a[i] = (float)((x[i] - fdmlab_ka_x_min[i]) / fdmlab_ka_x_span[i]);");
-    let mut from_a = true;
-    for i in 0..m.weights.layers.len() {
-        let (src, dst) = if from_a { ("a", "b") } else { ("b", "a") };
-        let _ = writeln!(s, "  fdmlab_ka_layer{i}({src}, {dst});");
-        from_a = !from_a;
-    }
-    let out = if from_a { "a" } else { "b" };
+    let out = c_mlp::layer_chain(&mut s, "fdmlab_ka", m.weights.layers.len());
     let _ = writeln!(s, "  return fdmlab_ka_y_min + (double){out}[0] * fdmlab_ka_y_span;\n}}\n\n#endif /* FDMLAB_KA_H */");
     Ok(s)
 }
@@ -481,13 +455,13 @@ fn c_header(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetErro
 fn json(model: &KaModel, opts: &ExportOptions) -> Result<String, DatasetError> {
     let m = &model.model;
     let n = m.feature_names.len();
-    let acts = ["relu", "relu", "sigmoid", "linear"];
+    let acts = ka::activations(m.weights.layers.len().saturating_sub(1));
     let layers: Vec<serde_json::Value> = m
         .weights
         .layers
         .iter()
         .enumerate()
-        .map(|(i, l)| serde_json::json!({"inputs": l.inputs, "outputs": l.outputs, "activation": acts.get(i).copied().unwrap_or("linear"), "w": l.w, "b": l.b}))
+        .map(|(i, l)| serde_json::json!({"inputs": l.inputs, "outputs": l.outputs, "activation": match acts.get(i) { Some(Activation::Relu) => "relu", Some(Activation::Sigmoid) => "sigmoid", _ => "linear" }, "w": l.w, "b": l.b}))
         .collect();
     let v = serde_json::json!({
         "schema": "fdmlab.ka-export/1",
@@ -514,6 +488,11 @@ mod tests {
 
     /// A quickly trained model on a slice of the twin's grid (direct drive, PLA/PETG).
     fn small_model() -> KaModel {
+        small_model_with(&[16, 16, 8])
+    }
+
+    /// As [`small_model`] with the given hidden layers.
+    fn small_model_with(hidden: &[usize]) -> KaModel {
         let cfg = fdmlab_models::extrusion::GridConfig { extruders: vec![fdmlab_models::extrusion::Extruder::Direct], ..Default::default() };
         let rows: Vec<_> = fdmlab_models::extrusion::grid::source_conditions(&cfg.extruders)
             .into_iter()
@@ -522,7 +501,7 @@ mod tests {
             .collect();
         let csv = crate::pa::grid::grid_csv(&rows);
         let t = load(csv.as_bytes(), "grid.csv", "k_a", Some(&["material".into(), "hotend_c".into(), "layer_mm".into()])).expect("grid loads");
-        let mut p = TrainParams::with_hidden(&[16, 16, 8]);
+        let mut p = TrainParams::with_hidden(hidden);
         p.train.epochs = 60;
         let settings = p.check().expect("valid settings");
         let all: Vec<usize> = (0..t.design.rows()).collect();
@@ -536,9 +515,17 @@ mod tests {
 
     #[test]
     fn c_header_matches_burn() {
-        let m = small_model();
+        // Three hidden layers (ReLU, ReLU, sigmoid) and two (ReLU, sigmoid): the header
+        // follows the network's activations, not a fixed list.
+        for hidden in [&[16, 16, 8][..], &[16, 8]] {
+            c_header_matches_burn_with(hidden);
+        }
+    }
+
+    fn c_header_matches_burn_with(hidden: &[usize]) {
+        let m = small_model_with(hidden);
         let header = export(&m, ExportFormat::CHeader, &opts()).expect("header");
-        let dir = std::env::temp_dir().join(format!("fdmlab-cheader-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!("fdmlab-cheader-{}-{}", std::process::id(), hidden.len()));
         std::fs::create_dir_all(&dir).expect("temp dir");
         std::fs::write(dir.join("ka.h"), &header).expect("write header");
         // Inputs: every material at 203.3 °C and several layers, including off-grid values.

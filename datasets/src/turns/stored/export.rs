@@ -5,8 +5,8 @@
 //! the raw feature row of `fdmlab_models::turns::features` (computed by the
 //! host from the junctions read so far).
 
+use crate::c_mlp::{self, c_floats};
 use crate::DatasetError;
-use fdmlab_models::nets::Activation;
 use fdmlab_models::turns::net::TurnModel;
 use std::fmt::Write as _;
 
@@ -34,10 +34,6 @@ pub fn export(m: &TurnModel, format: TurnExportFormat, label: &str) -> Result<St
         TurnExportFormat::CHeader => Ok(c_header(m, label)),
         TurnExportFormat::Json => json(m, label),
     }
-}
-
-fn c_floats(v: impl Iterator<Item = f32>) -> String {
-    v.map(|x| format!("{x:e}f")).collect::<Vec<_>>().join(", ")
 }
 
 fn c_header(m: &TurnModel, label: &str) -> String {
@@ -73,31 +69,9 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
     let _ = writeln!(s, "static const float fdmlab_turns_mean[{n}] = {{{}}};", c_floats(m.mean.iter().copied()));
     let _ = writeln!(s, "static const float fdmlab_turns_std[{n}] = {{{}}};", c_floats(m.std.iter().copied()));
-    for (i, l) in m.weights.layers.iter().enumerate() {
-        let _ = writeln!(s, "static const float fdmlab_turns_w{i}[{}] = {{{}}};", l.w.len(), c_floats(l.w.iter().copied()));
-        let _ = writeln!(s, "static const float fdmlab_turns_b{i}[{}] = {{{}}};", l.b.len(), c_floats(l.b.iter().copied()));
-    }
-    let widest = m.weights.layers.iter().map(|l| l.outputs.max(l.inputs)).max().unwrap_or(1);
-    let acts = m.activations();
-    let _ = writeln!(s, "\n/* Layer k: y = act(x W + b), W row-major [inputs][outputs]. */");
-    for (i, l) in m.weights.layers.iter().enumerate() {
-        let _ = writeln!(
-            s,
-            "static void fdmlab_turns_layer{i}(const float *restrict x, float *restrict y) {{\n  for (int o = 0; o < {no}; ++o) y[o] = fdmlab_turns_b{i}[o];\n  for (int i = 0; i < {ni}; ++i) {{\n    const float xi = x[i];\n    const float *wr = fdmlab_turns_w{i} + i * {no};\n    for (int o = 0; o < {no}; ++o) y[o] += xi * wr[o];\n  }}",
-            no = l.outputs,
-            ni = l.inputs
-        );
-        match acts.get(i) {
-            Some(Activation::Relu) => {
-                let _ = writeln!(s, "  for (int o = 0; o < {}; ++o) y[o] = y[o] > 0.0f ? y[o] : 0.0f;", l.outputs);
-            }
-            Some(Activation::Sigmoid) => {
-                let _ = writeln!(s, "  for (int o = 0; o < {}; ++o) y[o] = 1.0f / (1.0f + expf(-y[o]));", l.outputs);
-            }
-            _ => {}
-        }
-        let _ = writeln!(s, "}}\n");
-    }
+    c_mlp::weights(&mut s, "fdmlab_turns", &m.weights.layers);
+    let widest = c_mlp::widest(&m.weights.layers);
+    c_mlp::layer_functions(&mut s, "fdmlab_turns", &m.weights.layers, &m.activations());
     let _ = writeln!(s, "/* Predict every horizon from one raw feature row; no allocation, fixed sizes. */");
     let _ = writeln!(
         s,
@@ -105,13 +79,7 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     );
     let _ = writeln!(s, "  float a[{widest}], b[{widest}];");
     let _ = writeln!(s, "  for (int i = 0; i < FDMLAB_TURNS_INPUTS; ++i) a[i] = (x[i] - fdmlab_turns_mean[i]) / fdmlab_turns_std[i];");
-    let mut from_a = true;
-    for i in 0..m.weights.layers.len() {
-        let (src, dst) = if from_a { ("a", "b") } else { ("b", "a") };
-        let _ = writeln!(s, "  fdmlab_turns_layer{i}({src}, {dst});");
-        from_a = !from_a;
-    }
-    let out = if from_a { "a" } else { "b" };
+    let out = c_mlp::layer_chain(&mut s, "fdmlab_turns", m.weights.layers.len());
     let _ = writeln!(s, "  for (int k = 0; k < FDMLAB_TURNS_HORIZONS; ++k) {{");
     let _ = writeln!(s, "    float deg = ({out}[2 * k] + x[fdmlab_turns_prior[k]]) * 180.0f;");
     let _ = writeln!(s, "    angle_deg[k] = deg < 0.0f ? 0.0f : (deg > 180.0f ? 180.0f : deg);");
