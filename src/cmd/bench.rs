@@ -26,7 +26,7 @@ pub enum BenchCommand {
     Hbot(super::hbot::BenchArgs),
     /// Thermal identification (all families, orders 1..8) vs SIPPY's N4SID.
     Thermal(super::thermal::BenchArgs),
-    /// Discrepancy workflow on a long thermal log (base fit, ranking, augmentation).
+    /// Discrepancy workflow: a long thermal log (base fit, ranking, augmentation), or `--domain motion`: every case of a motion hidden set.
     Discrepancy(super::discrepancy::BenchArgs),
     /// Turn corpus: streaming G-code reader throughput vs a plain Python reader.
     Turns(super::turns_bench::BenchArgs),

@@ -327,18 +327,29 @@ fn hidden_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
 /// `fdmlab bench discrepancy`
 #[derive(clap::Args)]
 pub struct BenchArgs {
-    /// Samples in the log.
+    /// Domain: thermal (one long twin log) or motion (every case of a hidden set).
+    #[arg(long, value_enum, default_value_t = DomainName::Thermal)]
+    domain: DomainName,
+    /// Samples in the log (thermal).
     #[arg(long, default_value_t = 20_000)]
     samples: usize,
-    /// Repetitions (the best is reported).
+    /// Repetitions (the best is reported; thermal).
     #[arg(long, default_value_t = 5)]
     repeat: u32,
+    /// Seed of the motion hidden set (`HiddenConfig::small`; 3 is the development seed).
+    #[arg(long, default_value_t = 3)]
+    seed: u64,
 }
 
 /// The whole workflow (base fit, ranking, augmentation, everything
 /// recomputed) on a long twin log with the fan and near-bed loss and the
 /// thermistor lag on, against the heater-only base.
 pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    match a.domain {
+        DomainName::Thermal => {}
+        DomainName::Motion => return bench_motion(a.seed, ctx),
+        DomainName::Extrusion => anyhow::bail!("bench discrepancy: --domain extrusion has no benchmark (thermal or motion)"),
+    }
     let twin = Twin::default();
     let log = twin.random_log(a.samples.max(100), 1.0, 1)?;
     let mut best = f64::INFINITY;
@@ -362,6 +373,53 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
             names,
             r.before.rms,
             r.after.rms
+        )
+    });
+    Ok(())
+}
+
+/// The motion workflow on every case of a hidden set (`HiddenConfig::small(seed)`),
+/// one case at a time (each fit uses every core), against the baseline of one
+/// simulation of the base model over the protocol (best of 20) on the same machine.
+fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::motion::{self, hidden as mhidden, MotionModel};
+    let cases = mhidden::generate(&mhidden::HiddenConfig::small(seed))?;
+    let first = cases.first().ok_or_else(|| anyhow::anyhow!("the hidden set is empty"))?;
+    let base = MotionModel::base(first.data.axis);
+    let mut unit = f64::INFINITY;
+    for _ in 0..20 {
+        let t = Instant::now();
+        base.simulate_mm(&first.data)?;
+        unit = unit.min(t.elapsed().as_secs_f64());
+    }
+    let mut times = Vec::with_capacity(cases.len());
+    let total = Instant::now();
+    for c in &cases {
+        let t = Instant::now();
+        motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default())?;
+        times.push((t.elapsed().as_secs_f64(), c.answer.id.clone()));
+    }
+    let total = total.elapsed().as_secs_f64();
+    let mut sorted: Vec<f64> = times.iter().map(|t| t.0).collect();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let slowest = times.iter().max_by(|a, b| a.0.total_cmp(&b.0)).cloned().unwrap_or_default();
+    let value = json!({
+        "domain": "motion", "seed": seed, "cases": cases.len(), "samples": first.data.t_s.len(),
+        "simulation_s": unit, "total_s": total, "median_case_s": median, "slowest_case_s": slowest.0, "slowest_case": slowest.1,
+        "total_in_simulations": total / unit, "slowest_in_simulations": slowest.0 / unit,
+        "threads": fdmlab_models::parallel::threads(),
+    });
+    ctx.emit(&value, || {
+        format!(
+            "motion hidden set, seed {seed}: {} cases of {} samples in {total:.1} s (median case {median:.2} s, slowest {:.2} s: {}); one simulation {:.2} ms, so the set costs {:.0} and the slowest case {:.0} simulations' time\n",
+            cases.len(),
+            first.data.t_s.len(),
+            slowest.0,
+            slowest.1,
+            unit * 1e3,
+            total / unit,
+            slowest.0 / unit
         )
     });
     Ok(())

@@ -84,7 +84,8 @@ impl MotionModel {
     /// Simulated axis position (mm, offset not included) at the data's times.
     pub fn simulate_mm(&self, data: &MotionData) -> Result<Vec<f64>, ModelError> {
         let plant = self.plant()?;
-        let cmd = |t: f64| axis::interpolate(&data.t_s, &data.cmd_mm, t) * 1e-3;
+        let interp = axis::Interpolator::new(&data.t_s, &data.cmd_mm);
+        let cmd = |t: f64| interp.at(t) * 1e-3;
         Ok(plant.simulate(&data.t_s, &cmd, plant.default_step_s())?.into_iter().map(|y| y * 1e3).collect())
     }
 
@@ -391,17 +392,20 @@ fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<MotionModel, 
         start.effects.stribeck_n = MotionEffect::Stribeck.scales(model)[0];
     }
     let mut best = (output_sse(data, &start)?, start);
+    let grid: Vec<(i32, i32)> = (-SCAN_STEPS..=SCAN_STEPS).flat_map(|i| (-SCAN_STEPS..=SCAN_STEPS).map(move |j| (i, j))).collect();
     for (ds, dv) in SCAN_GRIDS {
         let centre = best.1;
-        for i in -SCAN_STEPS..=SCAN_STEPS {
-            for j in -SCAN_STEPS..=SCAN_STEPS {
-                let mut m = centre;
-                m.effects.stribeck_n = centre.effects.stribeck_n * 2f64.powf(i as f64 * ds);
-                m.effects.stribeck_v_m_s = centre.effects.stribeck_v_m_s * 2f64.powf(j as f64 * dv);
-                let sse = output_sse(data, &m)?;
-                if sse < best.0 {
-                    best = (sse, m);
-                }
+        // Every point on every core; the best taken in grid order (first of equals).
+        let points = crate::parallel::par_map(&grid, |&(i, j)| {
+            let mut m = centre;
+            m.effects.stribeck_n = centre.effects.stribeck_n * 2f64.powf(i as f64 * ds);
+            m.effects.stribeck_v_m_s = centre.effects.stribeck_v_m_s * 2f64.powf(j as f64 * dv);
+            output_sse(data, &m).map(|sse| (sse, m))
+        });
+        for point in points {
+            let (sse, m) = point?;
+            if sse < best.0 {
+                best = (sse, m);
             }
         }
     }

@@ -25,14 +25,14 @@ struct Problem<'a, F: Fn(&[f64]) -> Option<Vec<f64>>> {
     evals: std::cell::Cell<usize>,
 }
 
-impl<F: Fn(&[f64]) -> Option<Vec<f64>>> Problem<'_, F> {
+impl<F: Fn(&[f64]) -> Option<Vec<f64>> + Sync> Problem<'_, F> {
     fn eval(&self, p: &[f64]) -> Option<DVector<f64>> {
         self.evals.set(self.evals.get() + 1);
         (self.f)(p).filter(|r| r.iter().all(|v| v.is_finite())).map(DVector::from_vec)
     }
 }
 
-impl<F: Fn(&[f64]) -> Option<Vec<f64>>> LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, F> {
+impl<F: Fn(&[f64]) -> Option<Vec<f64>> + Sync> LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, F> {
     type ResidualStorage = Owned<f64, Dyn>;
     type JacobianStorage = Owned<f64, Dyn, Dyn>;
     type ParameterStorage = Owned<f64, Dyn>;
@@ -49,11 +49,18 @@ impl<F: Fn(&[f64]) -> Option<Vec<f64>>> LeastSquaresProblem<f64, Dyn, Dyn> for P
     }
     fn jacobian(&self) -> Option<DMatrix<f64>> {
         let r0 = self.r.as_ref()?;
+        // The columns' simulations are independent: run them on every core.
+        let columns: Vec<usize> = (0..self.p.len()).collect();
+        let (f, p0, steps) = (self.f, &self.p, self.steps);
+        let shifted = crate::parallel::par_map(&columns, |&j| {
+            let mut p = p0.clone();
+            p[j] += steps[j];
+            f(p.as_slice()).filter(|r| r.iter().all(|v| v.is_finite())).map(DVector::from_vec)
+        });
+        self.evals.set(self.evals.get() + columns.len());
         let mut jac = DMatrix::zeros(r0.len(), self.p.len());
-        for j in 0..self.p.len() {
-            let mut p = self.p.clone();
-            p[j] += self.steps[j];
-            let r = self.eval(p.as_slice())?;
+        for (j, r) in shifted.into_iter().enumerate() {
+            let r = r?;
             if r.len() != r0.len() {
                 return None;
             }
@@ -68,12 +75,12 @@ pub const PATIENCE: usize = 60;
 
 /// Minimise ‖r(p)‖² from `p0`; `steps[j]` is the finite-difference step of p_j and
 /// `r` returns `None` where the model cannot be simulated (LM then shrinks its step).
-pub fn fit(residuals: impl Fn(&[f64]) -> Option<Vec<f64>>, p0: &[f64], steps: &[f64]) -> Result<SimFit, ModelError> {
+pub fn fit(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f64], steps: &[f64]) -> Result<SimFit, ModelError> {
     fit_within(residuals, p0, steps, PATIENCE)
 }
 
 /// [`fit`] with LM stopping after `patience·(parameters + 1)` evaluations.
-pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>>, p0: &[f64], steps: &[f64], patience: usize) -> Result<SimFit, ModelError> {
+pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f64], steps: &[f64], patience: usize) -> Result<SimFit, ModelError> {
     if steps.len() != p0.len() || steps.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
         return Err(ModelError::Shape(format!("{} finite-difference steps for {} parameters", steps.len(), p0.len())));
     }

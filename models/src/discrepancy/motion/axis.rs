@@ -122,7 +122,14 @@ impl Friction {
     }
     /// Dry-friction magnitude while sliding at speed `v`.
     fn sliding(&self, v: f64) -> f64 {
+        if self.stribeck == 0.0 {
+            return self.coulomb;
+        }
         let s = v / self.stribeck_v;
+        // Beyond e^−746 the exponential is exactly 0 in f64: skip it (same value).
+        if s * s > 746.0 {
+            return self.coulomb;
+        }
         self.coulomb + self.stribeck * (-s * s).exp()
     }
 }
@@ -214,8 +221,13 @@ impl AxisPlant {
     fn forces(&self, x: &[f64; 2], v: &[f64; 2], cmd_m: f64, play: f64) -> [f64; 2] {
         let belt = self.k_belt * (self.belt_end(x[0], play) - x[1]);
         let drive = (self.drive_k * (cmd_m - x[0]) / self.r_m).clamp(-self.drive_max, self.drive_max) * 2.0 / self.r_m;
-        let phase = self.cog_wavenumber * x[0];
-        let cog = self.cogging[0] * phase.sin() + self.cogging[1] * phase.cos();
+        // Without cogging the term is exactly 0 (sin/cos are a third of a simulation's time).
+        let cog = if self.cogging == [0.0, 0.0] {
+            0.0
+        } else {
+            let (sin, cos) = (self.cog_wavenumber * x[0]).sin_cos();
+            self.cogging[0] * sin + self.cogging[1] * cos
+        };
         [drive + cog - belt - self.friction[0].viscous * v[0], belt - self.friction[1].viscous * v[1]]
     }
 
@@ -243,7 +255,7 @@ impl AxisPlant {
     /// position, m). Each sample interval is split into equal RK4 steps no longer than
     /// `max_step_s`, sub-stepped through Stribeck transitions (`substep`); friction
     /// modes switch between (sub-)steps as in `hbot::twin`.
-    pub fn simulate(&self, t_s: &[f64], cmd_m: &dyn Fn(f64) -> f64, max_step_s: f64) -> Result<Vec<f64>, ModelError> {
+    pub fn simulate(&self, t_s: &[f64], cmd_m: &impl Fn(f64) -> f64, max_step_s: f64) -> Result<Vec<f64>, ModelError> {
         if !(max_step_s.is_finite() && max_step_s > 0.0) {
             return Err(ModelError::invalid("max_step_s", max_step_s, "must be > 0"));
         }
@@ -296,7 +308,7 @@ impl AxisPlant {
     /// `rest` (then up to the moment its force reaches the static level, interpolated
     /// linearly).
     #[allow(clippy::too_many_arguments)]
-    fn substep(&self, x: &[f64; 2], v: &[f64; 2], modes: &[Mode; 2], play: f64, t: f64, rest: f64, cmd_m: &dyn Fn(f64) -> f64) -> f64 {
+    fn substep(&self, x: &[f64; 2], v: &[f64; 2], modes: &[Mode; 2], play: f64, t: f64, rest: f64, cmd_m: &impl Fn(f64) -> f64) -> f64 {
         let mut dt = rest;
         for i in 0..2 {
             let f = &self.friction[i];
@@ -337,7 +349,7 @@ impl AxisPlant {
     /// One RK4 step with friction modes frozen, then stick/slip switching (`hbot::twin`).
     /// The play state `play` is held within a step and updated at its end.
     #[allow(clippy::too_many_arguments)]
-    fn step(&self, x: &mut [f64; 2], v: &mut [f64; 2], modes: &mut [Mode; 2], play: &mut f64, t: f64, h: f64, cmd_m: &dyn Fn(f64) -> f64) {
+    fn step(&self, x: &mut [f64; 2], v: &mut [f64; 2], modes: &mut [Mode; 2], play: &mut f64, t: f64, h: f64, cmd_m: &impl Fn(f64) -> f64) {
         let (c0, cm, c1) = (cmd_m(t), cmd_m(t + 0.5 * h), cmd_m(t + h));
         let p = *play;
         let f0 = self.forces(x, v, c0, p);
@@ -395,19 +407,51 @@ impl AxisPlant {
 /// Linear interpolation of samples `(t_s, y)`; held constant outside the range.
 /// `t_s` must be increasing (checked by the callers' data readers).
 pub fn interpolate(t_s: &[f64], y: &[f64], t: f64) -> f64 {
-    let n = t_s.len().min(y.len());
-    if n == 0 {
-        return 0.0;
+    Interpolator::new(t_s, y).at(t)
+}
+
+/// [`interpolate`] for queries that mostly fall in the interval of the one before (a
+/// simulation's steps): it remembers that interval and searches only when `t` leaves it.
+/// Same values as [`interpolate`] (the interval is chosen by the same rule).
+pub struct Interpolator<'a> {
+    t_s: &'a [f64],
+    y: &'a [f64],
+    last: std::cell::Cell<usize>,
+}
+
+impl<'a> Interpolator<'a> {
+    pub fn new(t_s: &'a [f64], y: &'a [f64]) -> Self {
+        let n = t_s.len().min(y.len());
+        Self { t_s: &t_s[..n], y: &y[..n], last: std::cell::Cell::new(0) }
     }
-    if t <= t_s[0] {
-        return y[0];
+
+    /// The value at `t`.
+    pub fn at(&self, t: f64) -> f64 {
+        let (t_s, y) = (self.t_s, self.y);
+        let n = t_s.len();
+        if n == 0 {
+            return 0.0;
+        }
+        if t <= t_s[0] {
+            return y[0];
+        }
+        if t >= t_s[n - 1] {
+            return y[n - 1];
+        }
+        // The interval i with t_s[i] ≤ t < t_s[i + 1] (n ≥ 2 here, t inside the range).
+        let within = |i: usize| i + 1 < n && t_s[i] <= t && t < t_s[i + 1];
+        let hint = self.last.get();
+        let i = if within(hint) {
+            hint
+        } else if within(hint + 1) {
+            hint + 1
+        } else {
+            t_s.partition_point(|&s| s <= t).saturating_sub(1).min(n - 2)
+        };
+        self.last.set(i);
+        let f = (t - t_s[i]) / (t_s[i + 1] - t_s[i]);
+        y[i] + f * (y[i + 1] - y[i])
     }
-    if t >= t_s[n - 1] {
-        return y[n - 1];
-    }
-    let i = t_s[..n].partition_point(|&s| s <= t).saturating_sub(1).min(n - 2);
-    let f = (t - t_s[i]) / (t_s[i + 1] - t_s[i]);
-    y[i] + f * (y[i + 1] - y[i])
 }
 
 #[cfg(test)]
@@ -505,6 +549,38 @@ mod tests {
             let fine = plant.simulate(&t, &cmd, h / 4.0).expect("sim");
             let rms = crate::metrics::rms(&coarse, &fine);
             assert!(rms < 0.5e-6, "v_s {v_s}: h vs h/4: {rms:e} m RMS");
+        }
+    }
+
+    #[test]
+    fn the_remembering_interpolator_matches_a_linear_scan_in_any_query_order() {
+        // Reference: the interval found by scanning from the start (last i with t_s[i] ≤ t).
+        use rand::Rng as _;
+        let mut rng = crate::rng::seeded(5, 0);
+        let t: Vec<f64> = (0..40)
+            .scan(0.0, |s, _| {
+                *s += rng.random_range(0.001..0.02);
+                Some(*s)
+            })
+            .collect();
+        let y: Vec<f64> = (0..40).map(|_| rng.random_range(-5.0..5.0)).collect();
+        let reference = |x: f64| -> f64 {
+            if x <= t[0] {
+                return y[0];
+            }
+            if x >= t[39] {
+                return y[39];
+            }
+            let i = (0..39).filter(|&i| t[i] <= x).max().unwrap_or(0);
+            y[i] + (x - t[i]) / (t[i + 1] - t[i]) * (y[i + 1] - y[i])
+        };
+        let interp = Interpolator::new(&t, &y);
+        // Forward in small steps (the simulation's pattern), then samples' own times and random jumps.
+        let mut queries: Vec<f64> = (0..2000).map(|k| -0.01 + k as f64 * 2e-4).collect();
+        queries.extend(t.iter().copied().rev());
+        queries.extend((0..500).map(|_| rng.random_range(-0.1..0.6)));
+        for x in queries {
+            assert_eq!(interp.at(x).to_bits(), reference(x).to_bits(), "t = {x}");
         }
     }
 

@@ -2,7 +2,7 @@
 //! effects switched on, driven by a fixed protocol and read by the laser sensor of
 //! `hbot::sensor`, with the answers kept apart from the data.
 
-use super::axis::{interpolate, AxisPlant, MotionEffects};
+use super::axis::{interpolate, AxisPlant, Interpolator, MotionEffects};
 use super::{MotionData, MotionEffect, MotionModel};
 use crate::hbot::ident::Axis;
 use crate::hbot::sensor::LaserSensor;
@@ -201,7 +201,8 @@ fn make_case(
     }
     let positions = |m: &MotionModel| -> Result<Vec<f64>, ModelError> {
         let plant = AxisPlant::new(&m.params, m.axis, &m.effects)?;
-        let cmd = |t: f64| interpolate(t_s, cmd_mm, t) * 1e-3;
+        let interp = Interpolator::new(t_s, cmd_mm);
+        let cmd = |t: f64| interp.at(t) * 1e-3;
         // Half the workflow's step: the data are not made by the identical simulator.
         plant.simulate(t_s, &cmd, 0.5 * plant.default_step_s())
     };
