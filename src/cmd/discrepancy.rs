@@ -408,6 +408,7 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
         "domain": "motion", "seed": seed, "cases": cases.len(), "samples": first.data.t_s.len(),
         "simulation_s": unit, "total_s": total, "median_case_s": median, "slowest_case_s": slowest.0, "slowest_case": slowest.1,
         "total_in_simulations": total / unit, "slowest_in_simulations": slowest.0 / unit,
+        "cases_over_10_s": times.iter().filter(|t| t.0 > 10.0).map(|t| json!({"case": t.1, "seconds": t.0})).collect::<Vec<_>>(),
         "threads": fdmlab_models::parallel::threads(),
     });
     ctx.emit(&value, || {
