@@ -78,7 +78,7 @@ fn cells_table(v: &AdaptiveView) -> Result<Table, ModelError> {
 
 fn design_table(d: &DesignResult) -> Table {
     let mut t = Table::new(
-        "Model error vs number of prints: the grid in matrix order vs patterns chosen where the model is least certain (RMS and largest |K − K_twin| over the 35 candidate patterns, mean over the held-out seeds)",
+        "Model error vs number of prints: the grid in matrix order vs patterns chosen by `ka next` to cut K's variance over the domain most (RMS and largest |K − K_twin| over the 35 candidate patterns, mean over the held-out seeds)",
         ["prints", "grid RMS (s)", "chosen RMS (s)", "grid max (s)", "chosen max (s)"],
     );
     for r in &d.rows {
@@ -123,7 +123,7 @@ pub fn report(title: &str, v: &AdaptiveView) -> Result<Report, ModelError> {
     r.heading("Residuals");
     let rc = v.residuals;
     r.paragraph(format!(
-        "Cells' residuals against their own noise: χ² = {:.2} on {} dof, p = {:.3} — {}; worst cell at {} mm³/s, {} mm/s² (|z| = {:.2}); RMS {:.2} % of K. Outliers set aside: {}.",
+        "Cells' residuals against their own noise: χ² = {:.2} on {:.2} dof, p = {:.3} — {}; worst cell at {} mm³/s, {} mm/s² (|z| = {:.2}); RMS {:.2} % of K. Outliers set aside: {}.",
         rc.chi2,
         rc.dof,
         rc.p_value,

@@ -63,7 +63,7 @@ pub enum AdaptiveCommand {
         #[arg(long, value_delimiter = ',')]
         accel_range: Option<Vec<f64>>,
     },
-    /// Propose the next (speed, accel) patterns where the model's uncertainty is largest.
+    /// Propose the next (speed, accel) patterns that most reduce K's posterior variance over the domain (never a printed one).
     Next {
         /// Run id (`ka fit`, a pa-adaptive run) or model blob hash.
         #[arg(long)]
@@ -160,7 +160,7 @@ pub fn run(cmd: AdaptiveCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let r = &art.residuals;
             ctx.emit(&serde_json::json!({"run": record.id, "model": Hash::of(&json).0, "columns": art.model.columns, "residuals": r, "extra_sd": art.model.extra_sd}), || {
                 format!(
-                    "fitted K(flow, accel{}) on {} cells: residual χ² {:.2} on {} dof, p = {:.3} ({}), worst cell at {:.3} mm³/s, {} mm/s² (|z| {:.2}), RMS {:.2} % of K; outliers set aside: {:?}\nmodel {} (run {})\n",
+                    "fitted K(flow, accel{}) on {} cells: residual χ² {:.2} on {:.2} dof, p = {:.3} ({}), worst cell at {:.3} mm³/s, {} mm/s² (|z| {:.2}), RMS {:.2} % of K; outliers set aside: {:?}\nmodel {} (run {})\n",
                     art.model.columns.iter().filter(|c| !c.contains("ramp") && *c != "intercept").map(|c| format!(", {c}")).collect::<String>(),
                     data.len(),
                     r.chi2,
@@ -187,10 +187,20 @@ pub fn run(cmd: AdaptiveCommand, ctx: &Ctx) -> anyhow::Result<()> {
             let section = width * base.layer_mm.unwrap_or(layer);
             let props = design::next(&art.model, &cands, section, &base, count)?;
             ctx.emit(&serde_json::json!({"model": hash.0, "proposals": props}), || {
-                let mut s =
-                    format!("next {} pattern(s), largest posterior sd of ln K first:\n  speed mm/s  accel mm/s²  flow mm³/s   K now    sd\n", props.len());
+                let mut s = format!(
+                    "next {} pattern(s), largest cut of K's posterior variance over the domain first (printed patterns never proposed):\n  speed mm/s  accel mm/s²  flow mm³/s   K now    sd   variance cut\n",
+                    props.len()
+                );
                 for p in &props {
-                    s += &format!("  {:>10} {:>12} {:>11.3}  {:.4}  {:.1} %\n", p.speed_mm_s, p.accel_mm_s2, p.flow_mm3_s, p.k, 100.0 * p.ln_sd);
+                    s += &format!(
+                        "  {:>10} {:>12} {:>11.3}  {:.4}  {:.1} %  {:.1} %\n",
+                        p.speed_mm_s,
+                        p.accel_mm_s2,
+                        p.flow_mm3_s,
+                        p.k,
+                        100.0 * p.ln_sd,
+                        100.0 * p.domain_var_cut
+                    );
                 }
                 s
             });

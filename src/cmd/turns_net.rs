@@ -191,7 +191,7 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let read_s = t0.elapsed().as_secs_f64();
     let mut bar = super::TrainBar::new(ctx, "turns train", 1, params.epochs());
     let t1 = Instant::now();
-    let model = evaluate::train_and_tune(&data, &tune, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
+    let (model, stages) = evaluate::train_and_tune(&data, &tune, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
     let train_s = t1.elapsed().as_secs_f64();
     drop(bar);
     let json = stored::model_to_json(&model)?;
@@ -217,14 +217,19 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let hash = Hash::of(&json).0;
     let value = serde_json::json!({
         "run": record.id, "model": hash, "files": files.len(), "junctions": model.junctions, "rows": model.rows,
-        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "call_thresholds": model.call_thresholds, "baselines": model.baselines, "read_s": read_s, "train_s": train_s,
+        "horizons": task.horizons, "weight_bytes": model.weight_bytes(), "thresholds": model.thresholds, "call_thresholds": model.call_thresholds, "baselines": model.baselines, "read_s": read_s, "train_s": train_s, "stages": stages,
     });
     ctx.emit(&value, || {
         format!(
-            "trained on {} junctions of {} file(s) ({} rows) in {train_s:.1} s; horizons {:?}; weights {} bytes\nmodel {} (run {})\n",
+            "trained on {} junctions of {} file(s) ({} rows) in {train_s:.1} s (read {read_s:.1} s; network {:.1} s, previous-layer grid {:.1} s, kNN {:.1} s, tuning files {:.1} s, thresholds {:.1} s); horizons {:?}; weights {} bytes\nmodel {} (run {})\n",
             model.junctions,
             files.len(),
             model.rows,
+            stages.network_s,
+            stages.previous_layer_s,
+            stages.knn_s,
+            stages.tune_files_s,
+            stages.thresholds_s,
             task.horizons,
             model.weight_bytes(),
             &hash[..12],

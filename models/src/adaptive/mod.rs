@@ -2,8 +2,8 @@
 //!
 //! [`twin`] prints the calibration matrix on the extrusion plant with its nonlinear
 //! pressure term; [`model`] is the monotone K(flow, acceleration, …) with its
-//! uncertainty; [`design`] proposes the next patterns where that uncertainty is
-//! largest and compares chosen patterns with the grid; [`residual`] checks the
+//! uncertainty; [`design`] proposes the next patterns that most reduce that uncertainty
+//! over the domain and compares chosen patterns with the grid; [`residual`] checks the
 //! model's residuals and sends a line of the twin through the discrepancy workflow.
 
 pub mod design;

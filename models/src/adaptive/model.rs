@@ -436,10 +436,33 @@ impl KModel {
         self.cells.iter().map(|c| Ok((c.k.ln() - dot(&self.row(&c.query())?, &self.beta), own_sd(c)))).collect()
     }
 
-    /// Coefficients that are not held at their sign bound (free parameters of the fit).
-    pub fn free_coefficients(&self) -> usize {
-        let spec = self.columns.len();
-        (0..spec).filter(|&j| !(self.beta[j] == 0.0 && self.upper(j) == 0.0)).count()
+    /// Effective number of parameters of the fit against the cells' own noise: tr H, the
+    /// hat matrix H = X_F (X_FᵀWX_F + S_F⁻²)⁻¹ X_FᵀW over the free coefficients F (those
+    /// at a sign bound are fixed there), W = 1/own sd². With the Gaussian prior S, under the
+    /// model's own assumptions (prior-predictive data) E[Σ zᵢ²] = n − tr H exactly — the
+    /// residual χ²'s degrees of freedom ([`super::residual::check`]); with a flat prior tr H
+    /// is the free coefficients' count, the textbook n − p.
+    pub fn effective_parameters(&self) -> Result<f64, ModelError> {
+        let mut spec = shape_columns();
+        spec.extend(self.terms.columns());
+        let free: Vec<usize> = (0..spec.len()).filter(|&j| !(self.beta[j] == 0.0 && spec[j].2 == 0.0)).collect();
+        let rows: Vec<Vec<f64>> = self.cells.iter().map(|c| self.row(&c.query())).collect::<Result<_, _>>()?;
+        let w: Vec<f64> = self.cells.iter().map(|c| own_sd(c).powi(-2)).collect();
+        let p = free.len();
+        let a = nalgebra::DMatrix::from_fn(p, p, |i, j| {
+            let (fi, fj) = (free[i], free[j]);
+            rows.iter().zip(&w).map(|(r, wi)| wi * r[fi] * r[fj]).sum::<f64>() + if i == j { spec[fi].1.powi(-2) } else { 0.0 }
+        });
+        let inv = a.try_inverse().ok_or_else(|| ModelError::Shape("singular normal matrix".to_string()))?;
+        // tr H = Σᵢ wᵢ x_Fᵢᵀ A⁻¹ x_Fᵢ.
+        Ok(rows
+            .iter()
+            .zip(&w)
+            .map(|(r, wi)| {
+                let x = nalgebra::DVector::from_iterator(p, free.iter().map(|&j| r[j]));
+                wi * x.dot(&(&inv * &x))
+            })
+            .sum())
     }
 
     /// Upper bound of coefficient j (0 for the monotone and sign-constrained terms).
@@ -451,7 +474,7 @@ impl KModel {
 }
 
 /// A cell's own sd of ln K: its best-K sd relative to K, with [`NOISE_FLOOR`].
-fn own_sd(c: &Cell) -> f64 {
+pub fn own_sd(c: &Cell) -> f64 {
     ((c.k_sd / c.k).powi(2) + NOISE_FLOOR * NOISE_FLOOR).sqrt()
 }
 
@@ -494,6 +517,29 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn effective_parameters_match_the_analytic_ridge_trace() {
+        // K rising with flow and acceleration: every monotone coefficient is held at its
+        // bound 0, only the intercept is free. Its hat trace is analytic: n·w / (n·w + 1/s₀²),
+        // w = 1/(sd² + floor²) the cells' common weight, s₀ = PRIOR_INTERCEPT.
+        let mut cells = Vec::new();
+        for (i, q) in [3.0, 6.0, 9.0, 12.0].into_iter().enumerate() {
+            for (j, a) in [1000.0, 2000.0, 4000.0].into_iter().enumerate() {
+                cells.push(cell(q, a, 0.04 * (1.0 + 0.01 * (i + j) as f64)));
+            }
+        }
+        let m = KModel::fit(&cells, None, FitSettings { samples: 20, seed: 1 }).expect("fit");
+        assert!(m.beta[1..].iter().all(|b| *b == 0.0), "{:?}", m.beta);
+        let nw = cells.iter().map(|c| 1.0 / ((c.k_sd / c.k).powi(2) + NOISE_FLOOR.powi(2))).sum::<f64>();
+        let expect = nw / (nw + PRIOR_INTERCEPT.powi(-2));
+        let got = m.effective_parameters().expect("trace");
+        assert!((got - expect).abs() < 1e-9, "{got} vs {expect}");
+        // The residual check uses n − tr H: 12 − 0.99996… ≈ 11, where counting whole
+        // coefficients of a less constrained fit gave 1.
+        let r = super::super::residual::check(&m).expect("check");
+        assert!((r.dof - (12.0 - expect)).abs() < 1e-9, "{}", r.dof);
     }
 
     #[test]

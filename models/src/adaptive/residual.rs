@@ -4,8 +4,11 @@
 //! Two questions, kept apart so that nothing is hidden in the fit:
 //! 1. Do the cells' residuals exceed their own measurement noise? χ² of the
 //!    standardised residuals (own sd with [`super::model::NOISE_FLOOR`], no fitted
-//!    extra sd) on n − (free coefficients) degrees of freedom; p < 0.01 says the
-//!    model's form misses something, and the cell with the largest |z| is named. Cells
+//!    extra sd) on n − tr H degrees of freedom ([`KModel::effective_parameters`]: the
+//!    prior shrinks the free coefficients, so each counts less than one; on the twin's
+//!    12-pattern grid 14 of the 15 coefficients are free, whole counting gave 12 − 14
+//!    clamped to 1 dof, n − tr H gives 1.16: the check has little power on 12 cells);
+//!    p < 0.01 says the model's form misses something, and the cell with the largest |z| is named. Cells
 //!    the fit set aside as outliers (`KModel::outliers`) are listed, never dropped silently.
 //! 2. What does a constant-K plant miss on the printed lines? Lines of the matrix
 //!    printed on the twin with the model's K_A, their outflow read by a flow sensor
@@ -26,7 +29,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResidualCheck {
     pub chi2: f64,
-    pub dof: usize,
+    /// n − tr H (not an integer: the prior shrinks the coefficients).
+    pub dof: f64,
     pub p_value: f64,
     /// Largest |standardised residual| and its cell's (flow mm³/s, acceleration mm/s²).
     pub max_abs_z: f64,
@@ -47,8 +51,8 @@ pub fn check(model: &KModel) -> Result<ResidualCheck, ModelError> {
     let r = model.residuals()?;
     let z: Vec<f64> = r.iter().map(|(e, s)| e / s).collect();
     let chi2: f64 = z.iter().map(|v| v * v).sum();
-    let dof = r.len().saturating_sub(model.free_coefficients()).max(1);
-    let p_value = stats::chi2_sf(chi2, dof as f64);
+    let dof = r.len() as f64 - model.effective_parameters()?;
+    let p_value = stats::chi2_sf(chi2, dof);
     let (worst, max_abs_z) = z.iter().enumerate().fold((0, 0.0f64), |b, (i, v)| if v.abs() > b.1 { (i, v.abs()) } else { b });
     let rms_ln = (r.iter().map(|(e, _)| e * e).sum::<f64>() / r.len() as f64).sqrt();
     let verdict = if p_value >= ALPHA { "consistent" } else { "missing effect" }.to_string();

@@ -208,11 +208,16 @@ pub fn previous_layer_matches(j: &[Junction], count: usize, settings: &PreviousL
 /// has not been read yet.
 fn read_on(j: &[Junction], task: &HorizonTask, matches: &[Option<usize>]) -> Vec<Prediction> {
     (0..task.count(j.len()))
-        .map(|i| match matches[i].map(|p| p + task.horizon).filter(|&t| t <= i) {
+        .map(|i| match matched_target(task, matches, i) {
             Some(t) => Prediction { angle_deg: j[t].turn_deg, corner_prob: if corner_label(j, t, i, task) { 1.0 } else { 0.0 } },
             None => Prediction { angle_deg: 0.0, corner_prob: 0.0 },
         })
         .collect()
+}
+
+/// The junction `H` on from anchor `i`'s match, if it has been read by `i`.
+fn matched_target(task: &HorizonTask, matches: &[Option<usize>], i: usize) -> Option<usize> {
+    matches[i].map(|p| p + task.horizon).filter(|&t| t <= i)
 }
 
 /// "The same place one layer down": the nearest junction `p` of the previous
@@ -252,9 +257,10 @@ pub fn tune_previous_layer(paths: &[&[Junction]], tasks: &[HorizonTask]) -> (Pre
         for j in paths {
             let matches = previous_layer_matches(j, j.len(), settings);
             for task in tasks {
-                let truth = targets(j, task);
-                for (t, p) in truth.iter().zip(read_on(j, task, &matches)) {
-                    err += (p.angle_deg - t.0).abs();
+                // Angles only: the MAE needs no corner labels.
+                for i in 0..task.count(j.len()) {
+                    let predicted = matched_target(task, &matches, i).map_or(0.0, |t| j[t].turn_deg);
+                    err += (predicted - j[i + task.horizon].turn_deg).abs();
                     n += 1;
                 }
             }
@@ -739,6 +745,33 @@ mod tests {
         // Shifted by 0.8 mm with headings kept: 1 mm and 10° suffice.
         let shifted = junctions(&drifting_layers(12, |(x, y)| (x + 0.8, y)));
         assert_eq!(tune_previous_layer(&[&shifted], &tasks).0, PreviousLayer { max_dist_mm: 1.0, heading_tol_deg: 10.0 });
+    }
+
+    #[test]
+    fn every_previous_layer_trial_scores_as_the_baseline_is_scored() {
+        // The tuner reads angles only; each grid point's MAE must be the one
+        // `previous_layer` (what eval scores) gets against `targets`, on paths
+        // where some grid points match and some do not.
+        let tasks = [HorizonTask::new(1), HorizonTask::new(3)];
+        let rot = 7f64.to_radians();
+        let a = junctions(&drifting_layers(9, |(x, y)| (x * rot.cos() - y * rot.sin() + 0.3, x * rot.sin() + y * rot.cos())));
+        let b = junctions(&stacked_squares(20, 3));
+        let (_, trials) = tune_previous_layer(&[&a, &b], &tasks);
+        assert_eq!(trials.len(), PREVIOUS_LAYER_RADII_MM.len() * PREVIOUS_LAYER_TOLERANCES_DEG.len());
+        for trial in &trials {
+            let (mut err, mut n) = (0.0, 0);
+            for j in [&a, &b] {
+                for task in &tasks {
+                    for (p, t) in previous_layer(j, task, &trial.settings).iter().zip(targets(j, task)) {
+                        err += (p.angle_deg - t.0).abs();
+                        n += 1;
+                    }
+                }
+            }
+            assert!((trial.mae_deg - err / n as f64).abs() < 1e-12, "{trial:?} vs {}", err / n as f64);
+        }
+        let maes: Vec<f64> = trials.iter().map(|t| t.mae_deg).collect();
+        assert!(maes.iter().any(|&m| m != maes[0]), "the grid points differ: {maes:?}");
     }
 
     #[test]

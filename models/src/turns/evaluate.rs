@@ -447,7 +447,7 @@ pub fn leave_one_group_out(
         if tr.is_empty() {
             return Err(ModelError::Shape(format!("every training file is from {g}: nothing to train on without it")));
         }
-        let model = train_and_tune(&tr, &tu, task, params, blocks, &mut |_| {})?;
+        let (model, _) = train_and_tune(&tr, &tu, task, params, blocks, &mut |_| {})?;
         let files: Vec<(String, Vec<Move>)> = test.iter().filter(|f| f.1 == g).map(|f| (f.0.clone(), f.2.clone())).collect();
         let refs: Vec<Vec<Junction>> = tr.iter().map(|m| super::junctions(m)).collect();
         let (summary, _) = evaluate(&files, &model, &refs, blocks, &task.horizons, params.seed())?;
@@ -468,11 +468,29 @@ pub fn train_and_tune(
     params: &crate::nets::params::ValidTrainParams,
     blocks: &[usize],
     on_epoch: crate::nets::train::OnEpoch<'_>,
-) -> Result<TurnModel, ModelError> {
+) -> Result<(TurnModel, StageTimes), ModelError> {
+    let t0 = std::time::Instant::now();
     let junctions: Vec<Vec<Junction>> = files.iter().map(|m| super::junctions(m)).collect();
     let mut model = TurnModel::train(&junctions, task, params, on_epoch)?;
-    tune_calls(&mut model, &junctions, if tune.is_empty() { files } else { tune }, blocks)?;
-    Ok(model)
+    let network_s = t0.elapsed().as_secs_f64();
+    let times = tune_calls(&mut model, &junctions, if tune.is_empty() { files } else { tune }, blocks)?;
+    Ok((model, StageTimes { network_s, ..times }))
+}
+
+/// Wall seconds of each stage of [`train_and_tune`] (for `turns train`'s
+/// profile; no result depends on them).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageTimes {
+    /// Junctions and the network's training.
+    pub network_s: f64,
+    /// The previous-layer grid on the training junctions.
+    pub previous_layer_s: f64,
+    /// kNN fitted on the training junctions.
+    pub knn_s: f64,
+    /// Every method's predictions, truth and simulated call gains on the tuning files.
+    pub tune_files_s: f64,
+    /// The F1 and call thresholds' search.
+    pub thresholds_s: f64,
 }
 
 /// Tune every method alike on the `tune` files' moves (the network's and each
@@ -485,10 +503,19 @@ pub fn train_and_tune(
 /// junctions ([`super::contenders::tune_previous_layer`]). A call is worth its
 /// false alarms only where the buffer would learn of corners late, so the call
 /// threshold depends on the buffer, not on F1.
-pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Move>], blocks: &[usize]) -> Result<(), ModelError> {
+pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Move>], blocks: &[usize]) -> Result<StageTimes, ModelError> {
+    let clock = std::time::Instant::now();
+    let lap = |since: &mut f64| {
+        let now = clock.elapsed().as_secs_f64();
+        now - std::mem::replace(since, now)
+    };
+    let mut since = 0.0;
+    let mut times = StageTimes::default();
     let (previous_layer, previous_layer_trials) = super::contenders::tune_previous_layer(train, &model.task);
     model.baselines = Some(BaselineTuning { previous_layer, previous_layer_trials, ..BaselineTuning::default() });
+    times.previous_layer_s = lap(&mut since);
     let knn = super::contenders::fit_knn(train, &model.task)?;
+    times.knn_s = lap(&mut since);
     let ex = Extrusion::default();
     let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
     let horizons = model.task.horizons.clone();
@@ -517,6 +544,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
         }
         Ok((f1, gains))
     });
+    times.tune_files_s = lap(&mut since);
     let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<Vec<CallGain>>>) = (vec![], vec![]);
     for r in per_file {
         let (f1, g) = r?;
@@ -562,7 +590,8 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
         }
     }
     model.baselines = Some(tuning);
-    Ok(())
+    times.thresholds_s = lap(&mut since);
+    Ok(times)
 }
 
 /// One file's call gains with equal probabilities merged (one decision for a

@@ -203,6 +203,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         candidate_accels_mm_s2: s.design.candidate_accels.clone().unwrap_or(d.candidate_accels_mm_s2),
         seeds: s.design.seeds.clone(),
         samples: s.design.samples,
+        start: d.start,
     };
     let held_out = !s.design.seeds.is_empty() && !s.design.seeds.contains(&s.experiment.seed);
     spec.ensure(held_out, "design.seeds", "give held-out seeds, none equal to experiment.seed")?;
