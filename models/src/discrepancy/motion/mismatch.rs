@@ -178,20 +178,12 @@ impl Plant {
         let dw = vq - self.sigma0_n_per_m * vq.abs() * w / g;
         let lugre = self.sigma0_n_per_m * w + self.sigma1_ns_per_m * dw + self.viscous_ns_per_m * vq;
         let dist = self.periodic_n * (TAU * self.periodic_hz * t + self.periodic_phase).sin();
-        [
-            vz,
-            (drive + cog - c_z * vz - f1) / m_z,
-            vb,
-            (f1 - f2) / self.belt_mass_kg,
-            vq,
-            (f2 - p.b_bridge_ns_per_m * vq - lugre + dist) / p.m_bridge_kg,
-            dw,
-        ]
+        [vz, (drive + cog - c_z * vz - f1) / m_z, vb, (f1 - f2) / self.belt_mass_kg, vq, (f2 - p.b_bridge_ns_per_m * vq - lugre + dist) / p.m_bridge_kg, dw]
     }
 
     /// Bridge positions (m) at `t_s` for the commanded positions `cmd_mm` (linear
     /// between samples), from rest at the first command; the reading's drift included.
-    pub fn simulate(&self, t_s: &[f64], cmd_mm: &[f64]) -> Vec<f64> {
+    pub fn simulate(&self, t_s: &[f64], cmd_mm: &[f64]) -> Result<Vec<f64>, ModelError> {
         let start = cmd_mm.first().copied().unwrap_or(0.0) * 1e-3;
         let total = t_s.last().copied().unwrap_or(1.0).max(1e-9);
         let mut x = [start, 0.0, start, 0.0, start, 0.0, 0.0];
@@ -201,10 +193,10 @@ impl Plant {
             out.push(x[4] + self.drift_m * t_s[i] / total);
             if i + 1 < t_s.len() {
                 let (t0, t1, c0, c1) = (t_s[i], t_s[i + 1], cmd_mm[i] * 1e-3, cmd_mm[i + 1] * 1e-3);
-                x = dormand_prince(|t, x| self.rates(x, t, c0 + (c1 - c0) * (t - t0) / (t1 - t0)), x, t0, t1, &mut h);
+                x = dormand_prince(|t, x| self.rates(x, t, c0 + (c1 - c0) * (t - t0) / (t1 - t0)), x, t0, t1, &mut h)?;
             }
         }
-        out
+        Ok(out)
     }
 }
 
@@ -265,12 +257,12 @@ fn contributions(p: &Plant, t_s: &[f64], cmd_mm: &[f64], features: &[&str]) -> R
     for f in FEATURES.iter().chain(&OUTSIDE) {
         set(&mut floor_plant, f, 0.0);
     }
-    let floor = unabsorbed(t_s, cmd_mm, &floor_plant.simulate(t_s, cmd_mm))?;
+    let floor = unabsorbed(t_s, cmd_mm, &floor_plant.simulate(t_s, cmd_mm)?)?;
     let mut out = BTreeMap::new();
     for f in features {
         let mut alone = floor_plant;
         set(&mut alone, f, get(p, f));
-        let with = if get(p, f) == 0.0 { floor } else { unabsorbed(t_s, cmd_mm, &alone.simulate(t_s, cmd_mm))? };
+        let with = if get(p, f) == 0.0 { floor } else { unabsorbed(t_s, cmd_mm, &alone.simulate(t_s, cmd_mm)?)? };
         out.insert(f.to_string(), mismatch::above_floor(with, floor));
     }
     Ok(out)
@@ -320,7 +312,7 @@ fn make_case(opts: &MismatchOptions, i: usize, planned: &Planned, t_s: &[f64], c
     for (f, m) in planned.on.iter().chain(planned.outside.iter()) {
         set(&mut plant, f, *m);
     }
-    let clean = plant.simulate(t_s, cmd_mm);
+    let clean = plant.simulate(t_s, cmd_mm)?;
     if clean.iter().any(|y| !y.is_finite()) {
         return Err(ModelError::Numerical(format!("motion mismatch case {i}: the plant's state became non-finite")));
     }
@@ -346,13 +338,21 @@ mod tests {
         let v = 0.02;
         let t: Vec<f64> = (0..=100).map(|i| i as f64 * 0.01).collect();
         let cmd: Vec<f64> = t.iter().map(|t| v * t * 1e3).collect();
-        let q = p.simulate(&t, &cmd);
+        let q = p.simulate(&t, &cmd).expect("simulate");
         let force = (p.params.b_bridge_ns_per_m + 50.0) * v + BRISTLE_FLOOR_N + 9.0;
         // The motor side lags the command too (its viscous drag and the belt force
         // through the drive stiffness); measure the belt's stretch instead via a rerun
         // with a belt ten times stiffer: the difference is force·(1/k − 1/(10k)).
-        let stiff = Plant { params: HbotParams { k_l_n_per_m: 10.0 * p.params.k_l_n_per_m, k_r_n_per_m: 10.0 * p.params.k_r_n_per_m, k_u_n_per_m: 10.0 * p.params.k_u_n_per_m, ..p.params }, ..p };
-        let qs = stiff.simulate(&t, &cmd);
+        let stiff = Plant {
+            params: HbotParams {
+                k_l_n_per_m: 10.0 * p.params.k_l_n_per_m,
+                k_r_n_per_m: 10.0 * p.params.k_r_n_per_m,
+                k_u_n_per_m: 10.0 * p.params.k_u_n_per_m,
+                ..p.params
+            },
+            ..p
+        };
+        let qs = stiff.simulate(&t, &cmd).expect("simulate");
         let stretch = qs[100] - q[100];
         let expected = force * (1.0 / p.k_belt() - 1.0 / stiff.k_belt());
         assert!((stretch - expected).abs() < 0.02 * expected, "stretch {stretch} vs {expected}");
@@ -363,7 +363,7 @@ mod tests {
         // Belt mass, belt damping and bristles aside, the plant is the base model: on the
         // protocol the two agree within a few µm (what the floor of the answers measures).
         let (t, cmd) = super::super::hidden::protocol(SAMPLE_DT_S).expect("protocol");
-        let ours = Plant::nominal().simulate(&t, &cmd);
+        let ours = Plant::nominal().simulate(&t, &cmd).expect("simulate");
         let data = MotionData { axis: Axis::Y, t_s: t.clone(), cmd_mm: cmd.clone(), meas_mm: vec![0.0; t.len()] };
         let theirs = MotionModel::base(Axis::Y).simulate_mm(&data).expect("base");
         let worst = ours.iter().zip(&theirs).map(|(a, b)| (a * 1e3 - b).abs()).fold(0.0, f64::max);
