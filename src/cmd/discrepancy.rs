@@ -294,14 +294,8 @@ fn mismatch_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_models::discrepancy::extrusion::mismatch as em;
     let opts = em::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let cases = em::generate(&opts).map_err(|e| bad(e.to_string()))?;
-    let files = fdmlab_datasets::discrepancy::hidden_set_files(
-        DomainName::Extrusion,
-        em::GENERATOR,
-        opts.seed,
-        &opts,
-        cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer)),
-    )?;
-    write_hidden(&h.out, DomainName::Extrusion, em::GENERATOR, h.seed, files, ctx)
+    let csv = cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer));
+    write_set(h, DomainName::Extrusion, em::GENERATOR, &opts, csv, ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion --set mismatch`: the model-form
@@ -311,14 +305,21 @@ fn mismatch_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_models::discrepancy::motion::mismatch as mm;
     let opts = mm::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let cases = mm::generate(&opts).map_err(|e| bad(e.to_string()))?;
-    let files = fdmlab_datasets::discrepancy::hidden_set_files(
-        DomainName::Motion,
-        mm::GENERATOR,
-        opts.seed,
-        &opts,
-        cases.iter().map(|c| (fdmlab_datasets::discrepancy::motion::to_csv(&c.data), &c.answer)),
-    )?;
-    write_hidden(&h.out, DomainName::Motion, mm::GENERATOR, h.seed, files, ctx)
+    let csv = cases.iter().map(|c| (fdmlab_datasets::discrepancy::motion::to_csv(&c.data), &c.answer));
+    write_set(h, DomainName::Motion, mm::GENERATOR, &opts, csv, ctx)
+}
+
+/// Write a generated set of CSV texts and answers under `h.out` ([`write_hidden`]).
+fn write_set<C: serde::Serialize, A: serde::Serialize>(
+    h: &HiddenArgs,
+    domain: DomainName,
+    generator: &str,
+    config: &C,
+    cases: impl Iterator<Item = (String, A)>,
+    ctx: &Ctx,
+) -> anyhow::Result<()> {
+    let files = fdmlab_datasets::discrepancy::hidden_set_files(domain, generator, h.seed, config, cases)?;
+    write_hidden(&h.out, domain, generator, h.seed, files, ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion`: the full set of

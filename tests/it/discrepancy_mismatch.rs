@@ -184,3 +184,36 @@ fn check_mismatch_criteria(domain: &str, seeds: &[u64]) {
     assert!(20 * false_alarms.len() <= null.len(), "{report}");
     assert!(not_halved.is_empty(), "{report}");
 }
+
+#[test]
+fn the_motion_mismatch_set_is_handed_out_blind_with_its_drift_measured_analytically() {
+    // Development seed 1 (not a graded seed): the set's layout and one answer checked
+    // against arithmetic outside the generator.
+    let sb = Sandbox::new();
+    sb.ok(&["discrepancy", "hidden", "--domain", "motion", "--set", "mismatch", "--out", "m", "--seed", "1", "--seeds", "1", "--null-cases", "1"]);
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("m/answers.json")).expect("answers")).expect("json");
+    assert_eq!(doc["generator"], motion::mismatch::GENERATOR);
+    let cases = doc["cases"].as_array().expect("cases");
+    // Per noise level (2): 1 effect-free, 5 features × 2, 2 outside effects × 2; plus one pair.
+    assert_eq!(cases.len(), 31);
+    let (t, _) = motion::hidden::protocol(motion::mismatch::SAMPLE_DT_S).expect("protocol");
+    for (i, c) in cases.iter().enumerate() {
+        let file = c["file"].as_str().expect("file");
+        assert_eq!(file, format!("cases/case-{i:03}.csv"));
+        let text = std::fs::read_to_string(sb.path().join("m").join(file)).expect("case");
+        let data = fdmlab_datasets::discrepancy::motion::parse(&text, file).expect("motion data");
+        assert_eq!(data.t_s.len(), t.len());
+        let a = &c["answer"];
+        if a["id"].as_str().expect("id").starts_with("none-") {
+            assert!(a["graded"].as_bool().expect("graded") && a["effects"].as_array().expect("effects").is_empty(), "{a}");
+        }
+        // A reading drifting linearly by d over the log, its mean taken by the offset,
+        // leaves d/√12 RMS (a uniform ramp's deviation; 411 samples add 0.25 %): J_M
+        // cannot absorb a ramp. 2 %: what the J_M refit and the sampling may take.
+        if a["outside"] == "sensor_drift" {
+            let d = a["plant"]["drift_m"].as_f64().expect("drift") * 1e3;
+            let c = a["contribution"]["sensor_drift"].as_f64().expect("contribution");
+            assert!((c / (d / 12f64.sqrt()) - 1.0).abs() < 0.02, "drift {d} mm: contribution {c} mm");
+        }
+    }
+}
