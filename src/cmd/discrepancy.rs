@@ -97,9 +97,10 @@ struct HiddenArgs {
     #[arg(long = "null-cases", default_value_t = HiddenOptions::default().null_cases)]
     null_cases: usize,
     /// Which set: `hidden` (the domain's own generator) or `mismatch` (thermal: a
-    /// two-node plant; extrusion: a compressible power-law melt; both of another form,
-    /// integrated adaptively, with effects outside the library; `--seeds` replicates,
-    /// `--null-cases` effect-free cases per noise level).
+    /// two-node plant; extrusion: a compressible power-law melt; motion: a belt with
+    /// mass and LuGre friction; all of another form, integrated adaptively, with
+    /// effects outside the library; `--seeds` replicates, `--null-cases` effect-free
+    /// cases per noise level).
     #[arg(long, value_enum, default_value_t = SetKind::Hidden)]
     set: SetKind,
 }
@@ -109,7 +110,7 @@ struct HiddenArgs {
 enum SetKind {
     /// The domain's own hidden-effect generator.
     Hidden,
-    /// The model-form mismatch generator (thermal, extrusion).
+    /// The model-form mismatch generator (thermal, extrusion, motion).
     Mismatch,
 }
 
@@ -229,7 +230,7 @@ fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
         return match domain {
             DomainName::Thermal => mismatch_thermal(&h, ctx),
             DomainName::Extrusion => mismatch_extrusion(&h, ctx),
-            DomainName::Motion => Err(bad("--set mismatch exists for the thermal and extrusion domains, not motion (yet)")),
+            DomainName::Motion => mismatch_motion(&h, ctx),
         };
     }
     match domain {
@@ -293,14 +294,32 @@ fn mismatch_extrusion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_models::discrepancy::extrusion::mismatch as em;
     let opts = em::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
     let cases = em::generate(&opts).map_err(|e| bad(e.to_string()))?;
-    let files = fdmlab_datasets::discrepancy::hidden_set_files(
-        DomainName::Extrusion,
-        em::GENERATOR,
-        opts.seed,
-        &opts,
-        cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer)),
-    )?;
-    write_hidden(&h.out, DomainName::Extrusion, em::GENERATOR, h.seed, files, ctx)
+    let csv = cases.iter().map(|c| (fdmlab_datasets::discrepancy::extrusion::to_csv(&c.data), &c.answer));
+    write_set(h, DomainName::Extrusion, em::GENERATOR, &opts, csv, ctx)
+}
+
+/// `fdmlab discrepancy hidden --domain motion --set mismatch`: the model-form
+/// mismatch set of `models::discrepancy::motion::mismatch` (`--samples` is unused:
+/// the logs follow the hidden set's protocol).
+fn mismatch_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
+    use fdmlab_models::discrepancy::motion::mismatch as mm;
+    let opts = mm::MismatchOptions { seed: h.seed, replicates: h.seeds, null_cases: h.null_cases, ..Default::default() };
+    let cases = mm::generate(&opts).map_err(|e| bad(e.to_string()))?;
+    let csv = cases.iter().map(|c| (fdmlab_datasets::discrepancy::motion::to_csv(&c.data), &c.answer));
+    write_set(h, DomainName::Motion, mm::GENERATOR, &opts, csv, ctx)
+}
+
+/// Write a generated set of CSV texts and answers under `h.out` ([`write_hidden`]).
+fn write_set<C: serde::Serialize, A: serde::Serialize>(
+    h: &HiddenArgs,
+    domain: DomainName,
+    generator: &str,
+    config: &C,
+    cases: impl Iterator<Item = (String, A)>,
+    ctx: &Ctx,
+) -> anyhow::Result<()> {
+    let files = fdmlab_datasets::discrepancy::hidden_set_files(domain, generator, h.seed, config, cases)?;
+    write_hidden(&h.out, domain, generator, h.seed, files, ctx)
 }
 
 /// `fdmlab discrepancy hidden --domain motion`: the full set of

@@ -14,6 +14,7 @@
 
 pub mod axis;
 pub mod hidden;
+pub mod mismatch;
 
 use super::simfit;
 use super::{Candidate, Domain, Outcome, Ranked, ValidSelectOptions};

@@ -153,7 +153,7 @@ impl Plant {
 
     /// The thermistor's clean reading on `drives` (heater, fan, extrusion held over
     /// each 1 s interval), from equilibrium at the room temperature.
-    pub fn simulate(&self, drives: &Experiment) -> Vec<f64> {
+    pub fn simulate(&self, drives: &Experiment) -> Result<Vec<f64>, ModelError> {
         let n = drives.len();
         let total = n as f64 * drives.dt_s;
         let mut x = [self.ambient_c; 2];
@@ -163,9 +163,9 @@ impl Plant {
             out.push(x[1]);
             let (u, f, q) = (drives.heater_duty[k], drives.fan_duty[k], drives.extrude_mm3_s.get(k).copied().unwrap_or(0.0));
             let t0 = k as f64 * drives.dt_s;
-            x = dormand_prince(|t, x| self.rates(x, t, total, u, f, q), x, t0, t0 + drives.dt_s, &mut h);
+            x = dormand_prince(|t, x| self.rates(x, t, total, u, f, q), x, t0, t0 + drives.dt_s, &mut h)?;
         }
-        out
+        Ok(out)
     }
 }
 
@@ -283,8 +283,8 @@ fn contribution(p: &Plant, drives: &Experiment, feature: &str) -> Result<f64, Mo
         "periodic_draft" => alone.draft = p.draft,
         _ => {}
     }
-    let with = unabsorbed(drives, &alone.simulate(drives))?;
-    let floor = unabsorbed(drives, &floor_plant.simulate(drives))?;
+    let with = unabsorbed(drives, &alone.simulate(drives)?)?;
+    let floor = unabsorbed(drives, &floor_plant.simulate(drives)?)?;
     Ok(mismatch::above_floor(with, floor))
 }
 
@@ -315,7 +315,7 @@ pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError>
             set(&mut plant, f, *m);
         }
         let mut data = drives(opts.samples, plant.ambient_c, seed);
-        let clean = plant.simulate(&data);
+        let clean = plant.simulate(&data)?;
         let sigma = planned.noise;
         let normal = Normal::new(0.0, sigma).map_err(|e| ModelError::invalid("noise_c", sigma, &e.to_string()))?;
         let mut nr = rng::seeded(seed, 402);
@@ -342,7 +342,7 @@ mod tests {
         let p = Plant::nominal();
         let n = 4000;
         let e = Experiment { dt_s: 1.0, heater_duty: vec![1.0; n], fan_duty: vec![0.0; n], temperature_c: vec![0.0; n], ..Default::default() };
-        let t = p.simulate(&e)[n - 1];
+        let t = p.simulate(&e).expect("simulate")[n - 1];
         let dt = t - p.ambient_c;
         let out = p.natural_w_k * (dt / 100.0).powf(0.25) * dt + p.emissive_area_m2 * SIGMA_SB * ((t + KELVIN).powi(4) - (p.ambient_c + KELVIN).powi(4));
         assert!((out / p.heater_w - 1.0).abs() < 1e-3, "{t} °C: {out} W out of {} W", p.heater_w);

@@ -128,7 +128,7 @@ impl Plant {
     }
 
     /// Outflow (mm³/s) at `t_s` for the feed samples (linear between them), from rest.
-    pub fn simulate(&self, t_s: &[f64], feed: &[f64]) -> Vec<f64> {
+    pub fn simulate(&self, t_s: &[f64], feed: &[f64]) -> Result<Vec<f64>, ModelError> {
         let total = t_s.last().copied().unwrap_or(1.0).max(1e-9);
         let mut x = [0.0f64; 2];
         let mut h = 1e-3;
@@ -139,10 +139,10 @@ impl Plant {
             if i + 1 < t_s.len() {
                 let (t0, t1, f0, f1) = (t_s[i], t_s[i + 1], feed[i], feed[i + 1]);
                 let feed_at = |t: f64| f0 + (f1 - f0) * (t - t0) / (t1 - t0);
-                x = dormand_prince(|t, x| self.rates(x, t, total, feed_at(t)), x, t0, t1, &mut h);
+                x = dormand_prince(|t, x| self.rates(x, t, total, feed_at(t)), x, t0, t1, &mut h)?;
             }
         }
-        out
+        Ok(out)
     }
 }
 
@@ -197,8 +197,8 @@ fn contribution(p: &Plant, t_s: &[f64], feed: &[f64], feature: &str) -> Result<f
         "drifting_viscosity" => alone.drift = p.drift,
         _ => {}
     }
-    let with = unabsorbed(t_s, feed, &alone.simulate(t_s, feed))?;
-    let floor = unabsorbed(t_s, feed, &floor_plant.simulate(t_s, feed))?;
+    let with = unabsorbed(t_s, feed, &alone.simulate(t_s, feed)?)?;
+    let floor = unabsorbed(t_s, feed, &floor_plant.simulate(t_s, feed)?)?;
     Ok(mismatch::above_floor(with, floor))
 }
 
@@ -239,7 +239,7 @@ fn make_case(opts: &MismatchOptions, i: usize, planned: &Planned, t_s: &[f64], f
     for (f, m) in planned.on.iter().chain(planned.outside.iter()) {
         set(&mut plant, f, *m);
     }
-    let clean = plant.simulate(t_s, feed);
+    let clean = plant.simulate(t_s, feed)?;
     let sigma = planned.noise;
     let normal = Normal::new(0.0, sigma).map_err(|e| ModelError::invalid("noise_mm3_s", sigma, &e.to_string()))?;
     let mut nr = rng::seeded(seed, 502);
@@ -262,7 +262,7 @@ mod tests {
         // base plant (integrated by RK4): the two agree to the integrators' error.
         let (t, feed) = super::super::hidden::protocol(SAMPLE_DT_S).expect("protocol");
         let p = Plant::nominal();
-        let ours = p.simulate(&t, &feed);
+        let ours = p.simulate(&t, &feed).expect("simulate");
         let theirs = super::super::ExtrusionParams::linear(p.k_ref_s).simulate(&t, &feed).expect("linear");
         let peak = feed.iter().fold(0.0f64, |a, b| a.max(*b));
         let worst = ours.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
@@ -275,7 +275,7 @@ mod tests {
         let p = Plant { flow_index: 0.45, slip_per_s: 0.2, ..Plant::nominal() };
         let t: Vec<f64> = (0..=3000).map(|i| i as f64 * 0.01).collect();
         let feed = vec![6.0; t.len()];
-        let q = *p.simulate(&t, &feed).last().expect("samples");
+        let q = *p.simulate(&t, &feed).expect("simulate").last().expect("samples");
         let v = p.k_ref_s * p.q_ref_mm3_s * (q / p.q_ref_mm3_s).powf(p.flow_index);
         let balance = feed[0] - p.slip_per_s * p.slip_saturation_mm3 * (v / p.slip_saturation_mm3).tanh();
         assert!((q - balance).abs() < 1e-6 * feed[0], "{q} vs {balance}");
