@@ -23,6 +23,9 @@ pub struct MethodThreshold {
     pub blocks: usize,
     pub horizon: usize,
     pub threshold: f64,
+    /// The call gate of a corner-call rule ([`super::gate`]; none: every call acts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gate: Option<super::gate::Gate>,
 }
 
 /// The baselines' settings, tuned as the network's are and stored with it:
@@ -42,6 +45,12 @@ impl BaselineTuning {
     pub fn threshold(&self, method: &str, blocks: usize, horizon: usize) -> Option<f64> {
         let list = if blocks == 0 { &self.f1_thresholds } else { &self.call_thresholds };
         list.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon).map(|t| t.threshold)
+    }
+
+    /// `method`'s corner-call rule at `blocks` and `horizon`, if tuned.
+    pub fn call_rule(&self, method: &str, blocks: usize, horizon: usize) -> Option<super::gate::CallRule> {
+        let t = self.call_thresholds.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon)?;
+        Some(super::gate::CallRule { threshold: t.threshold, gate: t.gate })
     }
 }
 
