@@ -1,7 +1,7 @@
 //! Scoring predictions of one horizon: angle MAE, corner F1 at a threshold and
 //! corner ROC AUC, for the network and every baseline on the same anchors.
 
-use super::baselines::Knn;
+use super::baselines::Prediction;
 use super::contenders::{BaselineTuning, MethodThreshold};
 use super::downstream::{Downstream, Extrusion, Firmware, Outcomes};
 use super::features::{corner_target, Task};
@@ -156,8 +156,8 @@ type FileOutcome = (FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize,
 type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
 
 /// The network's and every baseline's predictions of one file at `horizon`
-/// (the network's first), and the network's raw predictions.
-pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Option<&Knn>) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
+/// (the network's first; `knn`: kNN's at `horizon`), and the network's raw predictions.
+pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Option<Vec<Prediction>>) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
     let p = model.predict(j, horizon)?;
     let mut out =
         vec![MethodPredictions { method: NETWORK.into(), angle_deg: p.angle_deg.clone(), corner_score: p.corner_probability.clone(), threshold: p.threshold }];
@@ -351,9 +351,10 @@ pub fn evaluate(
         let firmware = Firmware::each(&planners, moves, j, &ex);
         let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
         let (mut tp, mut downs) = (vec![], vec![]);
+        let mut knn_of = super::contenders::knn_predictions(&knn, j, &model.task);
         for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
             let t = truth(j, &model.task, h);
-            let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
+            let (preds, raw) = predictions(j, model, h, knn_of.get_mut(slot).map(std::mem::take))?;
             for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
                 downs.push(((b, k, mi), d.clone()));
                 fe.downstream.push(d);
@@ -526,8 +527,9 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<Step>>>);
     let per_file = crate::parallel::par_map(&indexed, |&moves| -> Result<FileTuning, ModelError> {
         let j = &super::junctions(moves);
+        let mut knn_of = super::contenders::knn_predictions(&knn, j, &m.task);
         let preds: Vec<(Vec<MethodPredictions>, HorizonPrediction)> =
-            horizons.iter().enumerate().map(|(slot, &h)| predictions(j, m, h, knn.get(slot))).collect::<Result<_, _>>()?;
+            horizons.iter().enumerate().map(|(slot, &h)| predictions(j, m, h, knn_of.get_mut(slot).map(std::mem::take))).collect::<Result<_, _>>()?;
         let f1 = preds
             .iter()
             .zip(&horizons)

@@ -70,42 +70,46 @@ pub struct Step {
     pub verdict: Verdict,
 }
 
-/// Which of `steps` (in anchor order, targets rising) `rule` acts on. A call's
-/// verdict counts for the decisions at anchors after its target (the target
-/// has then entered the buffer); calls below the threshold are not calls.
+/// The calls of `steps` at `threshold` (in anchor order, targets rising), each
+/// with the useful and false verdicts already come when it is made: a call's
+/// verdict counts for the decisions at anchors after its target (the target has
+/// then entered the buffer). `(index into steps, useful, false)`.
+fn verdicts_so_far(steps: &[Step], threshold: f64) -> Vec<(usize, u32, u32)> {
+    let calls: Vec<usize> = (0..steps.len()).filter(|&k| steps[k].probability as f64 >= threshold).collect();
+    let (mut useful, mut false_, mut next) = (0u32, 0u32, 0usize);
+    calls
+        .iter()
+        .map(|&k| {
+            while next < calls.len() && steps[calls[next]].target < steps[k].anchor {
+                match steps[calls[next]].verdict {
+                    Verdict::Useful => useful += 1,
+                    Verdict::False => false_ += 1,
+                    Verdict::Neutral => {}
+                }
+                next += 1;
+            }
+            (k, useful, false_)
+        })
+        .collect()
+}
+
+/// Whether the gate is open with `useful` and `false_` verdicts come.
+fn open(gate: Option<Gate>, useful: u32, false_: u32) -> bool {
+    gate.is_none_or(|g| g.credit + useful as f64 - g.false_cost * false_ as f64 >= 0.0)
+}
+
+/// Which of `steps` (in anchor order, targets rising) `rule` acts on: the calls
+/// at its threshold while the gate is open (calls below it are not calls).
 pub fn acted(steps: &[Step], rule: &CallRule) -> Vec<bool> {
     let mut out = vec![false; steps.len()];
-    let Some(gate) = rule.gate else {
-        for (o, s) in out.iter_mut().zip(steps) {
-            *o = s.probability as f64 >= rule.threshold;
-        }
-        return out;
-    };
-    let mut score = gate.credit;
-    // Calls made whose verdict is still to come: indices into `steps`, targets rising.
-    let mut pending = std::collections::VecDeque::new();
-    for (k, s) in steps.iter().enumerate() {
-        while let Some(&p) = pending.front() {
-            let c: &Step = &steps[p];
-            if c.target >= s.anchor {
-                break;
-            }
-            score += match c.verdict {
-                Verdict::Useful => 1.0,
-                Verdict::False => -gate.false_cost,
-                Verdict::Neutral => 0.0,
-            };
-            pending.pop_front();
-        }
-        if s.probability as f64 >= rule.threshold {
-            out[k] = score >= 0.0;
-            pending.push_back(k);
-        }
+    for (k, u, f) in verdicts_so_far(steps, rule.threshold) {
+        out[k] = open(rule.gate, u, f);
     }
     out
 }
 
 /// Total change of the width defect on one file under `rule`.
+#[cfg(test)]
 fn total(steps: &[Step], rule: &CallRule) -> f64 {
     acted(steps, rule).iter().zip(steps).filter(|(a, _)| **a).map(|(_, s)| s.delta as f64).sum()
 }
@@ -136,14 +140,27 @@ pub fn tune(files: &[Vec<Step>]) -> CallRule {
             }
         }
     }
-    let scored = crate::parallel::par_map(&rules, |r| {
-        let per_file: Vec<f64> = files.iter().map(|f| total(f, r)).collect();
-        let harmless = per_file.iter().all(|&d| d <= 1e-9);
-        (harmless, per_file.iter().sum::<f64>())
+    // Per threshold, per file: each call's verdicts so far and Δ (they do not depend on the gate).
+    let calls = crate::parallel::par_map(&THRESHOLDS, |&t| -> Vec<Vec<(u32, u32, f64)>> {
+        files.iter().map(|f| verdicts_so_far(f, t).into_iter().map(|(k, u, v)| (u, v, f[k].delta as f64)).collect()).collect()
     });
+    // The total over the files, or None as soon as one file is harmed.
+    let harmless_total = |r: &CallRule| -> Option<f64> {
+        let slot = THRESHOLDS.iter().position(|&t| t == r.threshold)?;
+        let mut sum = 0.0;
+        for file in &calls[slot] {
+            let d: f64 = file.iter().filter(|c| open(r.gate, c.0, c.1)).map(|c| c.2).sum();
+            if d > 1e-9 {
+                return None;
+            }
+            sum += d;
+        }
+        Some(sum)
+    };
+    let scored = crate::parallel::par_map(&rules, harmless_total);
     let mut best = (NEVER, -1e-9);
-    for (r, (harmless, sum)) in rules.iter().zip(scored) {
-        if harmless && sum < best.1 {
+    for (r, total) in rules.iter().zip(scored) {
+        if let Some(sum) = total.filter(|&s| s < best.1) {
             best = (*r, sum);
         }
     }
