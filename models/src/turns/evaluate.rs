@@ -157,7 +157,12 @@ type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
 
 /// The network's and every baseline's predictions of one file at `horizon`
 /// (the network's first; `knn`: kNN's at `horizon`), and the network's raw predictions.
-pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Option<Vec<Prediction>>) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
+pub fn predictions(
+    j: &[Junction],
+    model: &TurnModel,
+    horizon: usize,
+    knn: Option<Vec<Prediction>>,
+) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
     let p = model.predict(j, horizon)?;
     let mut out =
         vec![MethodPredictions { method: NETWORK.into(), angle_deg: p.angle_deg.clone(), corner_score: p.corner_probability.clone(), threshold: p.threshold }];
