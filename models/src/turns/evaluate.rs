@@ -152,6 +152,9 @@ pub use super::contenders::MethodPredictions;
 /// downstream results keyed by (buffer, horizon, method) indices.
 type FileOutcome = (FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>);
 
+/// One method's call candidates per tuning file (call-rule tuning).
+type PerFile = Vec<Vec<Step>>;
+
 /// Method names, corner labels and every method's scores of one horizon (F1 tuning).
 type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
 
@@ -554,7 +557,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     });
     times.tune_files_s = lap(&mut since);
     // Per (buffer, horizon) cell, per method, per file: its call candidates.
-    let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<Vec<Vec<Step>>>>) = (vec![], vec![]);
+    let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<PerFile>>) = (vec![], vec![]);
     for r in per_file {
         let (f1, g) = r?;
         for (k, (names, labels, scores)) in f1.into_iter().enumerate() {
