@@ -133,25 +133,26 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         r.heading("Corners seen too late, and the line width downstream");
         let mut t = Table::new(
             format!("Sharp corners (> 45°) that reach the firmware too late to brake, and the extrusion twin's line-width error (worst per sharp corner, capped at {:.0} %, averaged; false calls' spoilt width included) with pressure compensation driven by the planner's buffer alone vs by the network's calls", 100.0 * fdmlab_models::turns::downstream::DEFECT_CAP),
-            ["buffer (blocks)", "H", "call threshold", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "width error: planner (%)", "width error: with prediction (%)"],
+            ["buffer (blocks)", "H", "call rule", "sharp corners", "too late: planner", "too late: with prediction", "false calls", "calls withheld by the gate", "width error: planner (%)", "width error: with prediction (%)"],
         );
-        let threshold = |d: &Downstream| v.model.call_threshold(d.blocks, d.horizon).unwrap_or(f64::NAN);
+        let rule = |d: &Downstream| v.model.call_rule(d.blocks, d.horizon).ok();
         for d in &network {
             t.push([
                 d.blocks.to_string(),
                 d.horizon.to_string(),
-                shown(threshold(d)),
+                rule(d).map_or("—".into(), |r| r.describe()),
                 d.sharp.to_string(),
                 d.late_planner.to_string(),
                 d.late_predicted.to_string(),
                 d.false_calls.to_string(),
+                d.withheld.to_string(),
                 num(100.0 * d.width_error_planner, 3),
                 num(100.0 * d.width_error_predicted, 3),
             ]);
         }
         r.table(t);
         r.paragraph(
-            "The advance acts on the network's corner call when its probability reaches the call threshold of its buffer and horizon: the one with the lowest width error on the tuning files among those that raise no tuning file's width error above the buffer alone (a call rescues a late corner but a false one spoils width; \"never\" where no call paid there). The F1 of the metrics table uses the F1-optimal threshold on the same files instead.",
+            "The advance acts on the network's corner call when its probability reaches the call threshold of its buffer and horizon and the per-print gate is open (\"gate c/f\": the score c + useful calls − f · false calls so far on the print, each judged when its junction enters the buffer, is ≥ 0): the rule with the lowest width error on the tuning files among those that raise no tuning file's width error above the buffer alone (a call rescues a late corner but a false one spoils width; \"never\" where no rule paid there). The F1 of the metrics table uses the F1-optimal threshold on the same files instead.",
         );
         for d in &network {
             let verdict = if d.width_error_predicted < d.width_error_planner {
@@ -165,9 +166,9 @@ pub fn report(v: &TurnsView<'_>) -> Report {
                 "With a {}-block buffer at H = {} ({}): {} of {} sharp corners enter the planner's buffer too late; with the prediction {} do, at the cost of {} false calls. The twin's worst line-width error around a sharp corner, averaged over the sharp corners, is {}% with the buffer alone and {}% with the prediction: {verdict}.",
                 d.blocks,
                 d.horizon,
-                match threshold(d) {
-                    t if t > 1.0 => "the network never calls".to_string(),
-                    t => format!("call threshold {}", num(t, 3)),
+                match rule(d) {
+                    Some(r) if r.threshold <= 1.0 => format!("call rule {}", r.describe()),
+                    _ => "the network never calls".to_string(),
                 },
                 d.late_planner,
                 d.sharp,
@@ -181,16 +182,19 @@ pub fn report(v: &TurnsView<'_>) -> Report {
         let h0 = network[0].horizon;
         let rows: Vec<&Downstream> = v.downstream.iter().filter(|d| d.horizon == h0).collect();
         let mut t = Table::new(
-            format!("Line-width error (%) at H = {h0} with the advance driven by each method's corner calls at its tuned call threshold (false calls' spoilt width included), and its gain over the buffer alone in points with a 95 % bootstrap interval over the {} held-out files (negative: better)", v.summary.files),
-            ["buffer (blocks)", "method", "call threshold", "too late", "false calls", "width error (%)", "gain (points)", "interval", "files worse"],
+            format!("Line-width error (%) at H = {h0} with the advance driven by each method's corner calls under its tuned call rule (false calls' spoilt width included), and its gain over the buffer alone in points with a 95 % bootstrap interval over the {} held-out files (negative: better)", v.summary.files),
+            ["buffer (blocks)", "method", "call rule", "too late", "false calls", "width error (%)", "gain (points)", "interval", "files worse"],
         );
         for d in &rows {
-            let th = v.model.method_call_threshold(&d.method, d.blocks, d.horizon, f64::NAN).unwrap_or(f64::NAN);
+            let th = v.model.method_call_rule(&d.method, d.blocks, d.horizon, f64::NAN).ok();
             let g = gain_of(v, d);
             t.push([
                 d.blocks.to_string(),
                 d.method.clone(),
-                if th.is_nan() { "0.5 (untuned)".into() } else { shown(th) },
+                match th {
+                    Some(r) if !r.threshold.is_nan() => r.describe(),
+                    _ => "0.5 (untuned)".into(),
+                },
                 d.late_predicted.to_string(),
                 d.false_calls.to_string(),
                 num(100.0 * d.width_error_predicted, 3),
@@ -271,14 +275,6 @@ fn loso_table(r: &mut Report, held: &[HeldOutGroup]) {
         g.summary.horizons.iter().filter_map(|h| versus_best(&g.group, g.train_files, h)).for_each(|row| t.push(row));
     }
     r.table(t);
-}
-
-fn shown(t: f64) -> String {
-    if t > 1.0 {
-        "never".to_string()
-    } else {
-        num(t, 3)
-    }
 }
 
 /// The gain over files of the method, buffer and horizon of `d`.

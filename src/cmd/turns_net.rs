@@ -255,7 +255,7 @@ fn scores_json(h: &evaluate::HorizonScores) -> serde_json::Value {
 fn downstream_json(d: &Downstream) -> serde_json::Value {
     serde_json::json!({
         "blocks": d.blocks, "horizon": d.horizon, "method": d.method, "sharp": d.sharp, "late_buffer_alone": d.late_planner, "late": d.late_predicted,
-        "false_calls": d.false_calls, "width_error_buffer_alone": finite(d.width_error_planner), "width_error": finite(d.width_error_predicted),
+        "false_calls": d.false_calls, "withheld": d.withheld, "width_error_buffer_alone": finite(d.width_error_planner), "width_error": finite(d.width_error_predicted),
     })
 }
 
@@ -279,12 +279,13 @@ pub(super) fn scores_text(s: &mut String, horizons: &[evaluate::HorizonScores], 
     );
     let _ = writeln!(
         s,
-        "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>14}{}",
+        "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>9} {:>14}{}",
         "blocks",
         "H",
         "method",
         "late",
         "false calls",
+        "withheld",
         "width",
         if gains.is_some() { "   gain [interval] (files worse)" } else { "" }
     );
@@ -294,12 +295,13 @@ pub(super) fn scores_text(s: &mut String, horizons: &[evaluate::HorizonScores], 
             .map_or(String::new(), |g| format!("   {:+.2} [{:+.2}, {:+.2}] ({}/{})", g.gain_pp, g.lo_pp, g.hi_pp, g.files_worse, g.files));
         let _ = writeln!(
             s,
-            "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>14}{gain}",
+            "    {:<6} {:>4} {:<16} {:>6} {:>12} {:>9} {:>14}{gain}",
             d.blocks,
             d.horizon,
             d.method,
             d.late_predicted,
             d.false_calls,
+            d.withheld,
             format!("{:.1} ({:.1})", 100.0 * d.width_error_predicted, 100.0 * d.width_error_planner)
         );
     }
@@ -325,8 +327,15 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let (mut summary, per_file) = evaluate::evaluate(&files, &model, &train, &a.blocks, &a.horizon, a.seed)?;
     summary.slicers = evaluate::by_group(&per_file, &slicers, a.seed);
     let groups = &summary.slicers;
+    let mut rules = vec![];
+    for &b in &a.blocks {
+        for &h in &a.horizon {
+            rules.push((b, h, model.call_rule(b, h)?));
+        }
+    }
     let value = serde_json::json!({
         "model": hash.0, "horizons": a.horizon, "blocks": a.blocks, "seed": a.seed,
+        "call_rules": rules.iter().map(|(b, h, r)| serde_json::json!({"blocks": b, "horizon": h, "threshold": finite(r.threshold), "gate": r.gate})).collect::<Vec<_>>(),
         "files": per_file.iter().enumerate().map(|(k, f)| serde_json::json!({
             "file": f.file, "junctions": f.junctions, "slicer": slicers[k],
             "scores": f.horizons.iter().map(scores_json).collect::<Vec<_>>(),
@@ -347,6 +356,8 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     });
     ctx.emit(&value, || {
         let mut s = String::new();
+        let described: Vec<String> = rules.iter().map(|(b, h, r)| format!("{b} blocks H = {h}: {}", r.describe())).collect();
+        let _ = writeln!(s, "network's call rules (threshold, per-print gate credit/false-call cost): {}", described.join("; "));
         for f in &per_file {
             let _ = writeln!(s, "{}: {} junctions", f.file, f.junctions);
             scores_text(&mut s, &f.horizons, &f.downstream, None);

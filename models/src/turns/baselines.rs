@@ -304,10 +304,13 @@ pub fn history_features(j: &[Junction], i: usize, history: usize) -> Option<Vec<
 }
 
 /// k-nearest neighbours over history features, fitted on training paths.
+/// Fitted for several horizons at once ([`Knn::fit_horizons`]), the horizons
+/// share one tree (the history features do not depend on H) and one search
+/// per query ([`Knn::predict_horizons`]).
 #[derive(Debug, Clone)]
 pub struct Knn {
     params: KnnParams,
-    tree: KdTree,
+    tree: std::sync::Arc<KdTree>,
     angle: Vec<f64>,
     corner: Vec<bool>,
 }
@@ -315,21 +318,34 @@ pub struct Knn {
 impl Knn {
     /// Fit on the junctions of training paths for one task.
     pub fn fit(paths: &[&[Junction]], task: &HorizonTask, params: KnnParams) -> Result<Self, ModelError> {
+        Ok(Knn::fit_horizons(paths, std::slice::from_ref(task), params)?.remove(0))
+    }
+
+    /// Fit one kNN per task on the same reference points: the junctions with
+    /// enough history and a target at every task's horizon (at most
+    /// `max_refs`, evenly strided), each with its targets per task.
+    pub fn fit_horizons(paths: &[&[Junction]], tasks: &[HorizonTask], params: KnnParams) -> Result<Vec<Self>, ModelError> {
         if params.k == 0 || params.history == 0 || params.max_refs == 0 {
             return Err(ModelError::invalid("knn", format!("{params:?}"), "k, history and max_refs must be at least 1"));
         }
-        let total: usize = paths.iter().map(|p| task.count(p.len()).saturating_sub(params.history)).sum();
+        let Some(far) = tasks.iter().max_by_key(|t| t.horizon) else {
+            return Err(ModelError::Shape("kNN fitted for no horizon".into()));
+        };
+        let total: usize = paths.iter().map(|p| far.count(p.len()).saturating_sub(params.history)).sum();
         let stride = total.div_ceil(params.max_refs).max(1);
-        let (mut pts, mut angle, mut corner) = (Vec::new(), Vec::new(), Vec::new());
+        let mut pts = Vec::new();
+        let mut targets_of: Vec<(Vec<f64>, Vec<bool>)> = vec![(vec![], vec![]); tasks.len()];
         let mut seen = 0usize;
         for p in paths {
-            let truth = targets(p, task);
-            for (i, &(a, c)) in truth.iter().enumerate() {
+            let truth: Vec<Vec<(f64, bool)>> = tasks.iter().map(|t| targets(p, t)).collect();
+            for i in 0..far.count(p.len()) {
                 let Some(f) = history_features(p, i, params.history) else { continue };
                 if seen % stride == 0 {
                     pts.push(f);
-                    angle.push(a);
-                    corner.push(c);
+                    for ((angle, corner), t) in targets_of.iter_mut().zip(&truth) {
+                        angle.push(t[i].0);
+                        corner.push(t[i].1);
+                    }
                 }
                 seen += 1;
             }
@@ -337,7 +353,8 @@ impl Knn {
         if pts.is_empty() {
             return Err(ModelError::Shape("no training junction has enough history and a target".into()));
         }
-        Ok(Knn { params, tree: KdTree::build(pts), angle, corner })
+        let tree = std::sync::Arc::new(KdTree::build(pts));
+        Ok(targets_of.into_iter().map(|(angle, corner)| Knn { params, tree: tree.clone(), angle, corner }).collect())
     }
 
     /// Reference points kept.
@@ -351,14 +368,29 @@ impl Knn {
     }
 
     /// Predict every target of a path; junctions without enough history get
-    /// "no turn". Histories repeat (regular infill, perimeters), so each
-    /// distinct one is searched once, on every core.
+    /// "no turn".
     pub fn predict(&self, j: &[Junction], task: &HorizonTask) -> Vec<Prediction> {
+        Knn::predict_horizons(std::slice::from_ref(self), j, std::slice::from_ref(task)).remove(0)
+    }
+
+    /// [`Knn::predict`] for each of `knns` with its task, one search per
+    /// query for every kNN sharing the first's tree and settings (those of
+    /// [`Knn::fit_horizons`]). Histories repeat (regular infill, perimeters),
+    /// so each distinct one is searched once, on every core.
+    pub fn predict_horizons(knns: &[Knn], j: &[Junction], tasks: &[HorizonTask]) -> Vec<Vec<Prediction>> {
+        let Some(first) = knns.first() else { return vec![] };
+        if let Some(k) = knns.iter().position(|k| !std::sync::Arc::ptr_eq(&k.tree, &first.tree) || k.params != first.params) {
+            // Not one fit: search the rest on their own.
+            let mut out = Knn::predict_horizons(&knns[..k], j, &tasks[..k]);
+            out.extend(Knn::predict_horizons(&knns[k..], j, &tasks[k..]));
+            return out;
+        }
+        let count = tasks.iter().map(|t| t.count(j.len())).max().unwrap_or(0);
         let mut slot_of: HashMap<Vec<u64>, usize> = HashMap::new();
         let mut queries: Vec<Vec<f64>> = vec![];
-        let slots: Vec<Option<usize>> = (0..task.count(j.len()))
+        let slots: Vec<Option<usize>> = (0..count)
             .map(|i| {
-                history_features(j, i, self.params.history).map(|f| {
+                history_features(j, i, first.params.history).map(|f| {
                     *slot_of.entry(f.iter().map(|v| v.to_bits()).collect()).or_insert_with(|| {
                         queries.push(f);
                         queries.len() - 1
@@ -366,13 +398,21 @@ impl Knn {
                 })
             })
             .collect();
-        let answers = crate::parallel::par_map(&queries, |f| {
-            let nn = self.tree.nearest(f, self.params.k);
-            let n = nn.len().max(1) as f64;
-            let mut angles: Vec<f64> = nn.iter().map(|&r| self.angle[r]).collect();
-            Prediction { angle_deg: median(&mut angles), corner_prob: nn.iter().filter(|&&r| self.corner[r]).count() as f64 / n }
-        });
-        slots.into_iter().map(|s| s.map_or(Prediction { angle_deg: 0.0, corner_prob: 0.0 }, |s| answers[s])).collect()
+        let neighbours = crate::parallel::par_map(&queries, |f| first.tree.nearest(f, first.params.k));
+        knns.iter()
+            .zip(tasks)
+            .map(|(knn, task)| {
+                let answers: Vec<Prediction> = neighbours
+                    .iter()
+                    .map(|nn| {
+                        let n = nn.len().max(1) as f64;
+                        let mut angles: Vec<f64> = nn.iter().map(|&r| knn.angle[r]).collect();
+                        Prediction { angle_deg: median(&mut angles), corner_prob: nn.iter().filter(|&&r| knn.corner[r]).count() as f64 / n }
+                    })
+                    .collect();
+                slots[..task.count(j.len())].iter().map(|s| s.map_or(Prediction { angle_deg: 0.0, corner_prob: 0.0 }, |s| answers[s])).collect()
+            })
+            .collect()
     }
 }
 
@@ -380,7 +420,8 @@ impl Knn {
 /// 1977): median splits on the widest dimension, leaves of up to 16 points.
 #[derive(Debug, Clone)]
 struct KdTree {
-    /// Points, `dims` coordinates each, one after another.
+    /// Points, `dims` coordinates each, one after another: in input order while
+    /// building, then in tree order (point `order[k]` at `k`), so a leaf's are contiguous.
     points: Vec<f64>,
     dims: usize,
     order: Vec<usize>,
@@ -430,6 +471,7 @@ impl KdTree {
         let mut t = KdTree { order: (0..points.len()).collect(), points: points.concat(), dims, nodes: Vec::new() };
         let n = t.order.len();
         t.split(0, n);
+        t.points = t.order.iter().flat_map(|&o| t.points[o * dims..(o + 1) * dims].iter().copied()).collect();
         t
     }
 
@@ -498,9 +540,9 @@ impl KdTree {
         let dims = self.dims;
         match self.nodes[node] {
             KdNode::Leaf { lo, hi } => {
-                for &o in &self.order[lo..hi] {
+                for (pos, &o) in (lo..hi).zip(&self.order[lo..hi]) {
                     let worst = if heap.len() < k { f64::INFINITY } else { heap.peek().map_or(f64::INFINITY, |w| w.0) };
-                    let p = &self.points[o * dims..(o + 1) * dims];
+                    let p = &self.points[pos * dims..(pos + 1) * dims];
                     let mut d = 0.0;
                     let mut over = false;
                     for (a, b) in p.iter().zip(q) {
@@ -516,8 +558,7 @@ impl KdTree {
                 }
             }
             KdNode::Same { lo, hi } => {
-                let o = self.order[lo];
-                let d: f64 = self.points[o * dims..(o + 1) * dims].iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+                let d: f64 = self.points[lo * dims..(lo + 1) * dims].iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
                 for &o in &self.order[lo..hi] {
                     if !Self::offer(heap, k, d, o) {
                         break; // the rest have the same distance and larger indices
@@ -814,6 +855,19 @@ mod tests {
         let pred = knn.predict(&j, &task);
         for i in 3..truth.len() {
             assert!((pred[i].angle_deg - truth[i].0).abs() < 1e-9, "junction {i}");
+        }
+        // Fitted for H = 2, 8 and 32 on one tree, the one search per query recalls
+        // each horizon's truth wherever the reference set (junctions with a target
+        // 32 ahead) holds the junction: every anchor below n − 32.
+        let tasks = [HorizonTask::new(2), HorizonTask::new(8), HorizonTask::new(32)];
+        let knns = Knn::fit_horizons(&[&j], &tasks, KnnParams { k: 1, history: 4, max_refs: 10_000 }).expect("fits");
+        let preds = Knn::predict_horizons(&knns, &j, &tasks);
+        for (t, p) in tasks.iter().zip(&preds) {
+            let truth = targets(&j, t);
+            assert_eq!(p.len(), truth.len());
+            for i in 3..j.len() - 32 {
+                assert!((p[i].angle_deg - truth[i].0).abs() < 1e-9, "H {} junction {i}", t.horizon);
+            }
         }
     }
 

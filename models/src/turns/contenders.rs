@@ -23,6 +23,9 @@ pub struct MethodThreshold {
     pub blocks: usize,
     pub horizon: usize,
     pub threshold: f64,
+    /// The call gate of a corner-call rule ([`super::gate`]; none: every call acts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gate: Option<super::gate::Gate>,
 }
 
 /// The baselines' settings, tuned as the network's are and stored with it:
@@ -43,6 +46,12 @@ impl BaselineTuning {
         let list = if blocks == 0 { &self.f1_thresholds } else { &self.call_thresholds };
         list.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon).map(|t| t.threshold)
     }
+
+    /// `method`'s corner-call rule at `blocks` and `horizon`, if tuned.
+    pub fn call_rule(&self, method: &str, blocks: usize, horizon: usize) -> Option<super::gate::CallRule> {
+        let t = self.call_thresholds.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon)?;
+        Some(super::gate::CallRule { threshold: t.threshold, gate: t.gate })
+    }
 }
 
 /// Tune the previous-layer match on the training paths for every horizon of `task`.
@@ -52,10 +61,21 @@ pub fn tune_previous_layer(train: &[Vec<Junction>], task: &Task) -> (PreviousLay
     baselines::tune_previous_layer(&paths, &tasks)
 }
 
-/// kNN baselines fitted on the training junctions, one per horizon.
+/// kNN baselines fitted on the training junctions, one per horizon of `task`
+/// on one shared tree ([`Knn::fit_horizons`]).
 pub fn fit_knn(train: &[Vec<Junction>], task: &Task) -> Result<Vec<Knn>, ModelError> {
     let paths: Vec<&[Junction]> = train.iter().map(Vec::as_slice).collect();
-    task.horizons.iter().map(|&h| Knn::fit(&paths, &HorizonTask::of(task, h), KnnParams::default())).collect()
+    Knn::fit_horizons(&paths, &horizon_tasks(task), KnnParams::default())
+}
+
+/// kNN's predictions of one path at every horizon of `task` (one search per
+/// query for all of them), in the order of [`fit_knn`].
+pub fn knn_predictions(knn: &[Knn], j: &[Junction], task: &Task) -> Vec<Vec<Prediction>> {
+    Knn::predict_horizons(knn, j, &horizon_tasks(task)[..knn.len().min(task.horizons.len())])
+}
+
+fn horizon_tasks(task: &Task) -> Vec<HorizonTask> {
+    task.horizons.iter().map(|&h| HorizonTask::of(task, h)).collect()
 }
 
 /// One method's predictions at one horizon for anchors `0..n − H`.
@@ -78,10 +98,10 @@ fn wrap(method: &str, p: Vec<Prediction>) -> MethodPredictions {
     }
 }
 
-/// Predictions of every baseline for anchors `0..n − H` (`knn`: the one fitted
-/// for `h`), with the tuned previous-layer match and F1 thresholds (untuned:
+/// Predictions of every baseline for anchors `0..n − H` (`knn`: kNN's at `h`,
+/// [`knn_predictions`]), with the tuned previous-layer match and F1 thresholds (untuned:
 /// the defaults, 0.5).
-pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<&Knn>, tuning: Option<&BaselineTuning>) -> Vec<MethodPredictions> {
+pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<Vec<Prediction>>, tuning: Option<&BaselineTuning>) -> Vec<MethodPredictions> {
     let t = HorizonTask::of(task, h);
     let prev = tuning.map_or(PreviousLayer::default(), |b| b.previous_layer);
     let mut out = vec![
@@ -90,7 +110,7 @@ pub fn baselines_for(j: &[Junction], task: &Task, h: usize, knn: Option<&Knn>, t
         wrap(PREVIOUS_LAYER, baselines::previous_layer(j, &t, &prev)),
     ];
     if let Some(k) = knn {
-        out.push(wrap(KNN, k.predict(j, &t)));
+        out.push(wrap(KNN, k));
     }
     // The firmware reads where its newest block is: nothing beyond junction i.
     out.push(wrap(TRIVIAL[1], baselines::planner(j, &t, 0)));

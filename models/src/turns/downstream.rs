@@ -14,6 +14,7 @@
 //! called at horizon H is known when junction `j − H` entered it. The defect
 //! of a corner is the twin's `max |w/w_nom − 1|` over the event.
 
+use super::gate::{self, CallRule, Step, Verdict};
 use super::net::HorizonPrediction;
 use super::planner::{Block, Knowledge, Planner};
 use super::{Junction, Move};
@@ -86,6 +87,9 @@ pub struct Downstream {
     /// anticipated braking spoils until the buffer shows no corner).
     #[serde(default)]
     pub false_calls: usize,
+    /// Calls at the threshold the gate withheld ([`super::gate`]).
+    #[serde(default)]
+    pub withheld: usize,
 }
 
 impl Downstream {
@@ -96,6 +100,7 @@ impl Downstream {
         Downstream {
             method: parts.first().map_or(String::new(), |d| d.method.clone()),
             false_calls: parts.iter().map(|d| d.false_calls).sum(),
+            withheld: parts.iter().map(|d| d.withheld).sum(),
             horizon: parts.first().map_or(0, |d| d.horizon),
             blocks: parts.first().map_or(0, |d| d.blocks),
             sharp,
@@ -378,17 +383,6 @@ impl Firmware {
     }
 }
 
-/// Which junctions `pred`'s anchors call (anchor `i` calls junction `i + H`).
-fn calls(pred: &HorizonPrediction, n: usize) -> Vec<bool> {
-    let mut called = vec![false; n];
-    for (k, &i) in pred.anchors.iter().enumerate() {
-        if pred.corner_probability[k] >= pred.threshold && i + pred.horizon < n {
-            called[i + pred.horizon] = true;
-        }
-    }
-    called
-}
-
 /// Every callable junction's outcome at one horizon, without a call and (as
 /// first asked for) with one: what a call on a junction does depends on the
 /// junction, the buffer and H only, so the network and every baseline scored
@@ -420,13 +414,51 @@ impl<'a> Outcomes<'a> {
         }
     }
 
-    /// Late corners and width error with `pred`'s calls (anchor `i` calls a
-    /// corner within the window from junction `i + H` when its probability
-    /// reaches `pred.threshold`). The width error with prediction is the total
-    /// defect per sharp corner: the sharp corners' own plus what the false calls spoil.
-    pub fn downstream(&self, method: &str, pred: &HorizonPrediction) -> Downstream {
-        let called = calls(pred, self.j.len());
+    /// What the firmware learns of a call on junction `idx` once it enters the
+    /// buffer ([`Verdict`]): useful on a sharp corner the buffer alone learns of
+    /// too late, false with no corner within the window, else neutral.
+    fn verdict(&self, idx: usize) -> Verdict {
+        let (kn, ev) = (&self.fw.know[idx], &self.fw.events[idx]);
+        match ev.corner {
+            Some(_) if kn.too_late => Verdict::Useful,
+            Some(_) => Verdict::Neutral,
+            None if super::features::corner_target(self.j, idx, self.window_mm) => Verdict::Neutral,
+            None => Verdict::False,
+        }
+    }
+
+    /// `pred`'s call candidates at or above probability `floor`, in anchor order,
+    /// with what acting on each changes (Δ total defect: < 0 where the call
+    /// rescues a corner, > 0 where it is false and costs width) and its verdict.
+    /// Calls act independently (each junction is called by one anchor), so a
+    /// rule's total is the sum of the Δ of the calls it acts on.
+    pub fn steps(&self, pred: &HorizonPrediction, floor: f64) -> Vec<Step> {
+        let range = self.fw.callable(self.h);
+        pred.anchors
+            .iter()
+            .zip(&pred.corner_probability)
+            .filter(|(&i, &p)| p >= floor && range.contains(&(i + self.h)))
+            .map(|(&i, &p)| {
+                let t = i + self.h;
+                let delta = self.get(t, true).defect_predicted - self.get(t, false).defect_predicted;
+                Step { anchor: i, target: t, probability: p as f32, delta: delta as f32, verdict: self.verdict(t) }
+            })
+            .collect()
+    }
+
+    /// Late corners and width error with `pred`'s calls acted on under `rule`
+    /// (anchor `i` calls a corner within the window from junction `i + H` when
+    /// its probability reaches the threshold and the gate is open). The width
+    /// error with prediction is the total defect per sharp corner: the sharp
+    /// corners' own plus what the false calls spoil.
+    pub fn downstream(&self, method: &str, pred: &HorizonPrediction, rule: &CallRule) -> Downstream {
+        let steps = self.steps(pred, rule.threshold);
+        let mut called = vec![false; self.j.len()];
         let mut d = Downstream { method: method.to_string(), horizon: self.h, blocks: self.fw.blocks, ..Default::default() };
+        for (s, a) in steps.iter().zip(gate::acted(&steps, rule)) {
+            called[s.target] = a;
+            d.withheld += usize::from(!a);
+        }
         let (mut sum_p, mut sum_n) = (0.0, 0.0);
         for idx in self.fw.callable(self.h) {
             let (base, o) = (self.get(idx, false), self.get(idx, called[idx]));
@@ -443,69 +475,12 @@ impl<'a> Outcomes<'a> {
         }
         d
     }
-
-    /// What calling each anchor of `pred` would change: `(probability, Δ total
-    /// defect)`, Δ < 0 where the call rescues a corner, > 0 where it is false and
-    /// costs width, 0 where it changes nothing. Calls act independently (each
-    /// junction is called by one anchor), so a threshold's total is the sum of the
-    /// Δ of the anchors it calls.
-    pub fn call_gains(&self, pred: &HorizonPrediction) -> Vec<(f64, f64)> {
-        let range = self.fw.callable(self.h);
-        pred.anchors
-            .iter()
-            .zip(&pred.corner_probability)
-            .filter(|(&i, _)| range.contains(&(i + self.h)))
-            .map(|(&i, &p)| (p, self.get(i + self.h, true).defect_predicted - self.get(i + self.h, false).defect_predicted))
-            .collect()
-    }
 }
 
 /// Late corners and width error of one file at one horizon, given a method's
-/// predictions at that horizon ([`Outcomes::downstream`] for a single method).
-pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, window_mm: f64, ex: &Extrusion) -> Downstream {
-    Outcomes::new(j, firmware, pred.horizon, window_mm, ex).downstream(method, pred)
-}
-
-/// One anchor's call on a tuning file: its probability, what it changes
-/// ([`Outcomes::call_gains`]) and the file it is on.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CallGain {
-    pub probability: f64,
-    pub delta: f64,
-    pub file: usize,
-}
-
-/// The probability threshold minimising the total defect over `gains` (pooled
-/// over the tuning files) while doing no harm: calls are taken in order of
-/// falling probability, and a cut is admissible only if no tuning file's sum
-/// of Δ is above zero there (no file's line-width error rises above the buffer
-/// alone). Among admissible cuts the lowest total wins (the fewest calls among
-/// equals); the threshold lies midway between the last probability called and
-/// the next. Above every probability (nothing called) when no cut pays, so a
-/// 0/1 method either calls at 1 or never.
-pub fn best_call_threshold(gains: &mut [CallGain]) -> f64 {
-    gains.sort_by(|a, b| b.probability.total_cmp(&a.probability));
-    let files = gains.iter().map(|g| g.file + 1).max().unwrap_or(0);
-    let mut per_file = vec![0.0f64; files];
-    // Files whose running sum is above zero (harmed at the present cut).
-    let mut harmed = 0usize;
-    let (mut sum, mut best, mut cut) = (0.0, 0.0, 0);
-    for (k, g) in gains.iter().enumerate() {
-        sum += g.delta;
-        let before = per_file[g.file] > 1e-12;
-        per_file[g.file] += g.delta;
-        let after = per_file[g.file] > 1e-12;
-        harmed = harmed + usize::from(after) - usize::from(before);
-        // Probabilities tied with the next one cannot be split by a threshold.
-        if harmed == 0 && sum < best && gains.get(k + 1).is_none_or(|n| n.probability < g.probability) {
-            (best, cut) = (sum, k + 1);
-        }
-    }
-    match cut {
-        0 => gains.first().map_or(1.0, |g| g.probability.max(1.0)) + 1e-6,
-        c if c == gains.len() => gains[c - 1].probability,
-        c => 0.5 * (gains[c - 1].probability + gains[c].probability),
-    }
+/// predictions at that horizon acted on under `rule` ([`Outcomes::downstream`] for a single method).
+pub fn downstream(method: &str, j: &[Junction], firmware: &Firmware, pred: &HorizonPrediction, rule: &CallRule, window_mm: f64, ex: &Extrusion) -> Downstream {
+    Outcomes::new(j, firmware, pred.horizon, window_mm, ex).downstream(method, pred, rule)
 }
 
 #[cfg(test)]
@@ -555,8 +530,9 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
-        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, 0.0, &ex);
+        let every = CallRule { threshold: 0.5, gate: None };
+        let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, &every, 0.0, &ex);
+        let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, &every, 0.0, &ex);
         for d in [&small, &marlin] {
             assert!(d.sharp >= 8 && d.late_planner == d.sharp && d.late_predicted == 0, "{d:?}");
         }
@@ -572,30 +548,39 @@ mod tests {
     }
 
     #[test]
-    fn the_call_threshold_is_the_cut_with_the_lowest_total() {
-        // Calls by falling probability: Δ −2, +1, −0.5, +3, −0.1 → running sums −2,
-        // −1, −1.5, 1.5, 1.4: the lowest is after the first call, so the cut lies
-        // between 0.9 and 0.8.
-        let one = |v: &[(f64, f64)]| v.iter().map(|&(probability, delta)| CallGain { probability, delta, file: 0 }).collect::<Vec<_>>();
-        let mut g = one(&[(0.5, -0.1), (0.8, 1.0), (0.9, -2.0), (0.6, 3.0), (0.7, -0.5)]);
-        assert!((best_call_threshold(&mut g) - 0.85).abs() < 1e-12);
-        // Tied probabilities are one decision: 0.9 with −2 and +2.5 together cost 0.5.
-        let mut g = one(&[(0.9, -2.0), (0.9, 2.5), (0.4, -1.0)]);
-        assert!((best_call_threshold(&mut g) - 0.4).abs() < 1e-12);
-        // When no call pays, nothing is called; when every call pays, all are.
-        let mut g = one(&[(1.0, 0.0), (0.6, 0.5)]);
-        assert!(best_call_threshold(&mut g) > 1.0);
-        let mut g = one(&[(0.3, -1.0), (0.2, -0.5)]);
-        assert!((best_call_threshold(&mut g) - 0.2).abs() < 1e-12);
-        // Do no harm: calling down to 0.6 totals −2.5, the lowest, but leaves file 1
-        // at +0.5 (above its buffer alone), so the cut stays after 0.8 (total −2).
-        let mut g = vec![
-            CallGain { probability: 0.9, delta: -1.0, file: 0 },
-            CallGain { probability: 0.8, delta: -1.0, file: 1 },
-            CallGain { probability: 0.7, delta: 1.5, file: 1 },
-            CallGain { probability: 0.6, delta: -2.0, file: 0 },
-        ];
-        assert!((best_call_threshold(&mut g) - 0.75).abs() < 1e-12);
+    fn the_gate_stops_false_calls_on_a_straight_line_and_keeps_the_squares_calls() {
+        // A 2 m straight line in 5 mm moves has no corner: a call at every anchor is
+        // false. The gate (credit 2, cost 1) acts on the calls made before the third
+        // verdict arrives, H + 3 of them (`gate::every_false_call_stops_after_credit_over_cost`),
+        // and withholds the rest; ungated, every one is a false call.
+        let mut moves = squares(1);
+        moves.truncate(40);
+        let line: Vec<Move> =
+            (0..400).map(|k| Move { line: k + 1, x0: 5.0 * k as f64, x1: 5.0 * (k + 1) as f64, y0: 0.0, y1: 0.0, ..moves[0].clone() }).collect();
+        let j = crate::turns::junctions(&line);
+        let h = 16;
+        let anchors: Vec<usize> = (0..j.len() - h).collect();
+        let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: vec![1.0; anchors.len()], anchors, threshold: 0.5 };
+        let ex = Extrusion::default();
+        let fw = Firmware::new(&reference_planner(2).expect("planner"), &line, &j, &ex);
+        let gated = CallRule { threshold: 0.5, gate: Some(gate::Gate { credit: 2.0, false_cost: 1.0 }) };
+        let d = downstream("calls", &j, &fw, &pred, &gated, 0.0, &ex);
+        assert_eq!((d.sharp, d.false_calls, d.withheld), (0, h + 3, pred.anchors.len() - h - 3), "{d:?}");
+        let all = downstream("calls", &j, &fw, &pred, &CallRule { threshold: 0.5, gate: None }, 0.0, &ex);
+        assert_eq!(all.false_calls, pred.anchors.len());
+        // On the squares every call is on a corner a 2-block buffer learns of too
+        // late: every verdict is useful and the gate, however started, acts on
+        // what the ungated rule does once it opens, and withholds only the calls
+        // made before the first verdicts (a credit of 0 starts it open).
+        let moves = squares(3);
+        let j = crate::turns::junctions(&moves);
+        let anchors: Vec<usize> = (0..j.len() - h).collect();
+        let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
+        let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
+        let fw = Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex);
+        let open = CallRule { threshold: 0.5, gate: Some(gate::Gate { credit: 0.0, false_cost: 8.0 }) };
+        let (g, u) = (downstream("c", &j, &fw, &pred, &open, 0.0, &ex), downstream("c", &j, &fw, &pred, &CallRule { gate: None, ..open }, 0.0, &ex));
+        assert_eq!((g.withheld, g.late_predicted, g.width_error_predicted), (0, u.late_predicted, u.width_error_predicted));
     }
 
     #[test]

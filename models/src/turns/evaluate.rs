@@ -1,10 +1,11 @@
 //! Scoring predictions of one horizon: angle MAE, corner F1 at a threshold and
 //! corner ROC AUC, for the network and every baseline on the same anchors.
 
-use super::baselines::Knn;
+use super::baselines::Prediction;
 use super::contenders::{BaselineTuning, MethodThreshold};
-use super::downstream::{best_call_threshold, CallGain, Downstream, Extrusion, Firmware, Outcomes};
+use super::downstream::{Downstream, Extrusion, Firmware, Outcomes};
 use super::features::{corner_target, Task};
+use super::gate::Step;
 use super::net::{CallThreshold, HorizonPrediction, TurnModel};
 use super::planner::{Lookahead, Planner, PlannerParams};
 use super::{Junction, Move};
@@ -151,12 +152,20 @@ pub use super::contenders::MethodPredictions;
 /// downstream results keyed by (buffer, horizon, method) indices.
 type FileOutcome = (FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>);
 
+/// One method's call candidates per tuning file (call-rule tuning).
+type PerFile = Vec<Vec<Step>>;
+
 /// Method names, corner labels and every method's scores of one horizon (F1 tuning).
 type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
 
 /// The network's and every baseline's predictions of one file at `horizon`
-/// (the network's first), and the network's raw predictions.
-pub fn predictions(j: &[Junction], model: &TurnModel, horizon: usize, knn: Option<&Knn>) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
+/// (the network's first; `knn`: kNN's at `horizon`), and the network's raw predictions.
+pub fn predictions(
+    j: &[Junction],
+    model: &TurnModel,
+    horizon: usize,
+    knn: Option<Vec<Prediction>>,
+) -> Result<(Vec<MethodPredictions>, HorizonPrediction), ModelError> {
     let p = model.predict(j, horizon)?;
     let mut out =
         vec![MethodPredictions { method: NETWORK.into(), angle_deg: p.angle_deg.clone(), corner_score: p.corner_probability.clone(), threshold: p.threshold }];
@@ -226,8 +235,8 @@ pub fn reference_planner(blocks: usize) -> Result<Planner, ModelError> {
 
 /// Every method's corner calls (`preds`, on the network's anchors `raw`) driving
 /// the advance with each planner of `firmware`: `(buffer index, method index,
-/// result)`. Each method acts at its call threshold tuned for the buffer
-/// ([`TurnModel::method_call_threshold`]); the junctions' outcomes are
+/// result)`. Each method acts under its call rule tuned for the buffer
+/// ([`TurnModel::method_call_rule`]: threshold and gate); the junctions' outcomes are
 /// simulated once per buffer and shared by every method.
 pub fn downstream_of_methods(
     j: &[Junction],
@@ -241,8 +250,8 @@ pub fn downstream_of_methods(
     for (b, fw) in firmware.iter().enumerate() {
         let outcomes = Outcomes::new(j, fw, raw.horizon, model.task.corner_window_mm, &ex);
         for (mi, p) in preds.iter().enumerate().filter(|(_, p)| p.corner_score.len() == raw.anchors.len()) {
-            let threshold = model.method_call_threshold(&p.method, fw.blocks, raw.horizon, p.threshold)?;
-            out.push((b, mi, outcomes.downstream(&p.method, &as_calls(p, raw, threshold))));
+            let rule = model.method_call_rule(&p.method, fw.blocks, raw.horizon, p.threshold)?;
+            out.push((b, mi, outcomes.downstream(&p.method, &as_calls(p, raw, rule.threshold), &rule)));
         }
     }
     Ok(out)
@@ -350,9 +359,10 @@ pub fn evaluate(
         let firmware = Firmware::each(&planners, moves, j, &ex);
         let mut fe = FileEval { file: name.clone(), junctions: j.len(), horizons: vec![], downstream: vec![], traces: vec![] };
         let (mut tp, mut downs) = (vec![], vec![]);
+        let mut knn_of = super::contenders::knn_predictions(&knn, j, &model.task);
         for (k, (&slot, &h)) in slots.iter().zip(horizons).enumerate() {
             let t = truth(j, &model.task, h);
-            let (preds, raw) = predictions(j, model, h, knn.get(slot))?;
+            let (preds, raw) = predictions(j, model, h, knn_of.get_mut(slot).map(std::mem::take))?;
             for (b, mi, d) in downstream_of_methods(j, &firmware, model, &preds, &raw)? {
                 downs.push(((b, k, mi), d.clone()));
                 fe.downstream.push(d);
@@ -496,10 +506,9 @@ pub struct StageTimes {
 /// Tune every method alike on the `tune` files' moves (the network's and each
 /// baseline's, kNN fitted on the `train` junctions): the F1 threshold of each
 /// probability at each horizon ([`super::net::best_threshold`]), and the corner-call
-/// threshold for each planner buffer of `blocks` and horizon, the one
-/// minimising the downstream width error without raising any tuning file's
-/// above the buffer alone ([`best_call_threshold`]); a 0/1 method either calls
-/// or never does. The previous-layer match is tuned first, on the `train`
+/// rule (threshold and per-print gate) for each planner buffer of `blocks` and
+/// horizon, the one minimising the downstream width error without raising any
+/// tuning file's above the buffer alone ([`super::gate::tune`]). The previous-layer match is tuned first, on the `train`
 /// junctions ([`super::contenders::tune_previous_layer`]). A call is worth its
 /// false alarms only where the buffer would learn of corners late, so the call
 /// threshold depends on the buffer, not on F1.
@@ -519,15 +528,16 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     let ex = Extrusion::default();
     let planners: Vec<Planner> = blocks.iter().map(|&n| reference_planner(n)).collect::<Result<_, _>>()?;
     let horizons = model.task.horizons.clone();
-    let indexed: Vec<(usize, &Vec<Move>)> = tune.iter().enumerate().collect();
+    let indexed: Vec<&Vec<Move>> = tune.iter().collect();
     let m = &*model;
     // Per file (on every core): per horizon, the methods' names, truth and
-    // corner scores; per (buffer, horizon, method), its calls' gains.
-    type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<CallGain>>>);
-    let per_file = crate::parallel::par_map(&indexed, |&(file, moves)| -> Result<FileTuning, ModelError> {
+    // corner scores; per (buffer, horizon, method), its call candidates.
+    type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<Step>>>);
+    let per_file = crate::parallel::par_map(&indexed, |&moves| -> Result<FileTuning, ModelError> {
         let j = &super::junctions(moves);
+        let mut knn_of = super::contenders::knn_predictions(&knn, j, &m.task);
         let preds: Vec<(Vec<MethodPredictions>, HorizonPrediction)> =
-            horizons.iter().enumerate().map(|(slot, &h)| predictions(j, m, h, knn.get(slot))).collect::<Result<_, _>>()?;
+            horizons.iter().enumerate().map(|(slot, &h)| predictions(j, m, h, knn_of.get_mut(slot).map(std::mem::take))).collect::<Result<_, _>>()?;
         let f1 = preds
             .iter()
             .zip(&horizons)
@@ -539,13 +549,15 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
         for fw in Firmware::each(&planners, moves, j, &ex) {
             for (ps, raw) in &preds {
                 let outcomes = Outcomes::new(j, &fw, raw.horizon, m.task.corner_window_mm, &ex);
-                gains.push(ps.iter().map(|p| merge_ties(outcomes.call_gains(&as_calls(p, raw, 0.0)), file)).collect());
+                let floor = super::gate::THRESHOLDS[0];
+                gains.push(ps.iter().map(|p| outcomes.steps(&as_calls(p, raw, floor), floor)).collect());
             }
         }
         Ok((f1, gains))
     });
     times.tune_files_s = lap(&mut since);
-    let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<Vec<CallGain>>>) = (vec![], vec![]);
+    // Per (buffer, horizon) cell, per method, per file: its call candidates.
+    let (mut f1_data, mut gains): (Vec<F1Data>, Vec<Vec<PerFile>>) = (vec![], vec![]);
     for r in per_file {
         let (f1, g) = r?;
         for (k, (names, labels, scores)) in f1.into_iter().enumerate() {
@@ -562,7 +574,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
                 gains.push(vec![vec![]; cell.len()]);
             }
             for (dst, src) in gains[k].iter_mut().zip(cell) {
-                dst.extend(src);
+                dst.push(src);
             }
         }
     }
@@ -573,19 +585,20 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             if name == NETWORK {
                 model.thresholds[slot] = threshold as f32;
             } else {
-                tuning.f1_thresholds.push(MethodThreshold { method: name.clone(), blocks: 0, horizon: horizons[slot], threshold });
+                tuning.f1_thresholds.push(MethodThreshold { method: name.clone(), blocks: 0, horizon: horizons[slot], threshold, gate: None });
             }
         }
     }
     model.call_thresholds.clear();
     let cells = blocks.iter().flat_map(|&n| horizons.iter().enumerate().map(move |(slot, &h)| (n, slot, h)));
-    for ((blocks, slot, horizon), methods) in cells.zip(gains.iter_mut()) {
-        for (name, g) in f1_data[slot].0.iter().zip(methods.iter_mut()) {
-            let threshold = best_call_threshold(g);
+    for ((blocks, slot, horizon), methods) in cells.zip(&gains) {
+        for (name, files) in f1_data[slot].0.iter().zip(methods) {
+            let rule = super::gate::tune(files);
+            let (threshold, gate) = (rule.threshold.min(FAR_ABOVE_ONE), rule.gate);
             if name == NETWORK {
-                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold });
+                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold, gate });
             } else {
-                tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold });
+                tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold, gate });
             }
         }
     }
@@ -594,19 +607,8 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     Ok(times)
 }
 
-/// One file's call gains with equal probabilities merged (one decision for a
-/// threshold), so 0/1 and vote-share methods keep a few entries per file.
-fn merge_ties(mut g: Vec<(f64, f64)>, file: usize) -> Vec<CallGain> {
-    g.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut out: Vec<CallGain> = Vec::with_capacity(g.len());
-    for (probability, delta) in g {
-        match out.last_mut() {
-            Some(last) if last.probability == probability => last.delta += delta,
-            _ => out.push(CallGain { probability, delta, file }),
-        }
-    }
-    out
-}
+/// A stored "never call" threshold (JSON has no infinity): above every probability.
+const FAR_ABOVE_ONE: f64 = 2.0;
 
 fn trace(j: &[Junction], h: usize, t: &Truth, preds: &[MethodPredictions]) -> Trace {
     let n = t.angle_deg.len();

@@ -10,6 +10,7 @@ pub mod contenders;
 pub mod downstream;
 pub mod evaluate;
 pub mod features;
+pub mod gate;
 pub mod net;
 pub mod planner;
 

@@ -4,6 +4,7 @@
 //! (L1 loss, what the MAE scores) and a corner logit (binary cross-entropy).
 
 use super::features::{self, Task, CORNER_DEG};
+use super::gate::CallRule;
 use super::Junction;
 use crate::nets::mlp::{Activation, Mlp, MlpShape, NetWeights};
 use crate::nets::params::{Schedule, TrainParams, ValidTrainParams};
@@ -42,7 +43,7 @@ pub struct TurnModel {
     /// (the training rows' F1-optimal threshold).
     pub thresholds: Vec<f32>,
     /// Per planner buffer and horizon: the probability above which the advance
-    /// acts on a corner call, chosen on the training files to minimise the
+    /// acts on a corner call and its gate, chosen on the tuning files to minimise the
     /// downstream width error (`evaluate::tune_calls`); `thresholds` where absent.
     #[serde(default)]
     pub call_thresholds: Vec<CallThreshold>,
@@ -62,6 +63,9 @@ pub struct CallThreshold {
     pub blocks: usize,
     pub horizon: usize,
     pub threshold: f64,
+    /// The per-print call gate ([`super::gate`]; none in older models: every call acts).
+    #[serde(default)]
+    pub gate: Option<super::gate::Gate>,
 }
 
 /// Predictions of one horizon for anchors `i` (target junction `i + H`).
@@ -245,21 +249,21 @@ impl TurnModel {
         Ok(pred)
     }
 
-    /// The threshold at which the advance acts on a corner call with a planner
-    /// buffer of `blocks` at `horizon` (tuned for that buffer, else the F1 one).
-    pub fn call_threshold(&self, blocks: usize, horizon: usize) -> Result<f64, ModelError> {
+    /// How the advance acts on corner calls with a planner buffer of `blocks`
+    /// at `horizon` (tuned for that buffer, else every call at the F1 threshold).
+    pub fn call_rule(&self, blocks: usize, horizon: usize) -> Result<CallRule, ModelError> {
         let tuned = self.call_thresholds.iter().find(|c| c.blocks == blocks && c.horizon == horizon);
-        Ok(tuned.map_or(self.thresholds[self.slot(horizon)?] as f64, |c| c.threshold))
+        Ok(tuned.map_or(CallRule { threshold: self.thresholds[self.slot(horizon)?] as f64, gate: None }, |c| CallRule { threshold: c.threshold, gate: c.gate }))
     }
 
-    /// The threshold at which `method`'s corner calls drive the advance with a
-    /// buffer of `blocks` at `horizon`: the network's [`Self::call_threshold`], a
-    /// baseline's tuned one, else `fallback` (its F1 threshold).
-    pub fn method_call_threshold(&self, method: &str, blocks: usize, horizon: usize, fallback: f64) -> Result<f64, ModelError> {
+    /// How `method`'s corner calls drive the advance with a buffer of `blocks`
+    /// at `horizon`: the network's [`Self::call_rule`], a baseline's tuned one,
+    /// else every call at `fallback` (its F1 threshold).
+    pub fn method_call_rule(&self, method: &str, blocks: usize, horizon: usize, fallback: f64) -> Result<CallRule, ModelError> {
         if method == NETWORK {
-            return self.call_threshold(blocks, horizon);
+            return self.call_rule(blocks, horizon);
         }
-        Ok(self.baselines.as_ref().and_then(|b| b.threshold(method, blocks, horizon)).unwrap_or(fallback))
+        Ok(self.baselines.as_ref().and_then(|b| b.call_rule(method, blocks, horizon)).unwrap_or(CallRule { threshold: fallback, gate: None }))
     }
 
     /// Weight size in bytes as float32 (weights, biases, standardisation).

@@ -50,7 +50,7 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     let _ = writeln!(s, " * (a corner at or above threshold k of FDMLAB_TURNS_THRESHOLD_LIST, the F1-optimal one; an advance behind an");
     let _ = writeln!(
         s,
-        " * N-block planner acts on calls at FDMLAB_TURNS_CALL_THRESHOLD_BN, tuned for line width). Weights: {} bytes of float32. */",
+        " * N-block planner acts on calls at FDMLAB_TURNS_CALL_THRESHOLD_BN, tuned for line width, while its per-print gate is open:\n * score = FDMLAB_TURNS_GATE_CREDIT_BN + useful calls - FDMLAB_TURNS_GATE_FALSE_COST_BN * false calls >= 0, each call\n * judged when its junction enters the buffer: useful on a sharp corner the buffer learns of too late, false with no\n * corner within the window). Weights: {} bytes of float32. */",
         m.weight_bytes()
     );
     let _ = writeln!(s, "#ifndef FDMLAB_TURNS_H\n#define FDMLAB_TURNS_H\n#include <math.h>\n");
@@ -62,8 +62,15 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     buffers.dedup();
     for b in buffers {
         // Per horizon, the probability at which an advance behind a `b`-block planner acts on a call (above 1: never).
-        let t: Vec<f32> = m.task.horizons.iter().map(|&h| m.call_threshold(b, h).unwrap_or(f64::NAN) as f32).collect();
-        let _ = writeln!(s, "#define FDMLAB_TURNS_CALL_THRESHOLD_B{b} {{{}}}", c_floats(t.into_iter()));
+        let rules: Vec<_> = m.task.horizons.iter().map(|&h| m.call_rule(b, h).ok()).collect();
+        let t = rules.iter().map(|r| r.map_or(f32::NAN, |r| r.threshold as f32));
+        let _ = writeln!(s, "#define FDMLAB_TURNS_CALL_THRESHOLD_B{b} {{{}}}", c_floats(t));
+        // The per-print gate: act only while credit + useful − false_cost · false ≥ 0 over
+        // the print's calls so far (ungated: a credit that never runs out, cost 0).
+        let credit = rules.iter().map(|r| r.and_then(|r| r.gate).map_or(1e30, |g| g.credit as f32));
+        let cost = rules.iter().map(|r| r.and_then(|r| r.gate).map_or(0.0, |g| g.false_cost as f32));
+        let _ = writeln!(s, "#define FDMLAB_TURNS_GATE_CREDIT_B{b} {{{}}}", c_floats(credit));
+        let _ = writeln!(s, "#define FDMLAB_TURNS_GATE_FALSE_COST_B{b} {{{}}}", c_floats(cost));
     }
     let priors: Vec<String> = (0..h).map(|k| m.task.prior_index(k).to_string()).collect();
     let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
