@@ -42,4 +42,7 @@ for s in scripts/services/*.sh; do
     source "$svc_root/$name/env"
 done
 
+# No incremental caches unless asked for: on a clean build they only grow
+# target/ (CI ran out of disk once). Set CARGO_INCREMENTAL=1 to keep them.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 cargo test --workspace "$@"
