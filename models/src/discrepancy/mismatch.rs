@@ -9,6 +9,7 @@
 //! features above 3σ, and a case is graded only when every feature is clearly on
 //! (> 3σ) or off (< 1σ), and an outside effect, if any, is above 3σ.
 
+use crate::ModelError;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -47,6 +48,22 @@ pub fn plan(
     let sigma0 = noise.first().copied().unwrap_or(0.0);
     out.extend(pairs.iter().map(|p| Planned { on: p.to_vec(), outside: None, noise: sigma0 }));
     out
+}
+
+/// Make every case of `plan` on all cores, in plan order, after checking the set's
+/// options (`options`, for the error): `spread` in [0, 0.9) and every noise level
+/// finite and > 0. `make(i, planned)` makes case `i`.
+pub fn generate_cases<C: Send>(
+    options: &dyn std::fmt::Debug,
+    spread: f64,
+    noise: &[f64],
+    plan: &[Planned],
+    make: impl Fn(usize, &Planned) -> Result<C, ModelError> + Sync,
+) -> Result<Vec<C>, ModelError> {
+    if !(0.0..0.9).contains(&spread) || noise.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(ModelError::invalid("mismatch options", format!("{options:?}"), "need spread in [0, 0.9), noise > 0"));
+    }
+    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, planned)| make(*i, planned)).into_iter().collect()
 }
 
 /// One case's answer (written to `answers.json` only).
@@ -122,6 +139,17 @@ mod tests {
         // a at 2σ: not a right name, and not graded.
         let weak = answer(0.2, 0.0);
         assert!(weak.effects.is_empty() && !weak.graded);
+    }
+
+    #[test]
+    fn cases_come_in_plan_order_and_bad_options_are_refused() {
+        let p = plan(&["a"], &[], |_| [1.0, 2.0], &[0.1], 1, 1, &[]);
+        let made = generate_cases(&"opts", 0.3, &[0.1], &p, |i, c| Ok((i, c.on.len()))).expect("made");
+        assert_eq!(made, vec![(0, 0), (1, 1), (2, 1)]);
+        for (spread, noise) in [(0.9, 0.1), (-0.1, 0.1), (0.3, 0.0), (0.3, f64::NAN)] {
+            let err = generate_cases(&"opts", spread, &[noise], &p, |i, _| Ok(i)).expect_err("refused");
+            assert!(err.to_string().contains("need spread in [0, 0.9), noise > 0"), "{err}");
+        }
     }
 
     #[test]

@@ -292,13 +292,13 @@ fn contribution(p: &Plant, drives: &Experiment, feature: &str) -> Result<f64, Mo
 /// feature at two magnitudes, every outside effect at two magnitudes, `replicates` of
 /// each; plus two pairs (fan + sensor lag, fan + radiation) at the first noise level.
 pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError> {
-    if opts.samples < 300 || !(0.0..0.9).contains(&opts.spread) || opts.noise_c.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-        return Err(ModelError::invalid("mismatch options", format!("{opts:?}"), "need ≥ 300 samples, spread in [0, 0.9), noise > 0"));
+    if opts.samples < 300 {
+        return Err(ModelError::invalid("mismatch options", format!("{opts:?}"), "need ≥ 300 samples"));
     }
     let pairs = [[("fan_cooling", 0.1), ("sensor_lag", 12.0)], [("fan_cooling", 0.1), ("radiation", 0.9 * 1.6e-3)]];
     let plan = mismatch::plan(&FEATURES, &OUTSIDE, magnitudes, &opts.noise_c, opts.replicates, opts.null_cases, &pairs);
-    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, planned)| {
-        let seed = mismatch::case_seed(opts.seed, *i);
+    mismatch::generate_cases(opts, opts.spread, &opts.noise_c, &plan, |i, planned| {
+        let seed = mismatch::case_seed(opts.seed, i);
         let mut r = rng::seeded(seed, 401);
         let mut jitter = |v: f64| v * (1.0 + opts.spread * r.random_range(-1.0..=1.0));
         let nominal = Plant::nominal();
@@ -325,11 +325,9 @@ pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError>
             contrib.insert(f.to_string(), contribution(&plant, &data, f)?);
         }
         data.name = format!("case-{i:03}");
-        let answer = MismatchAnswer::new(*i, planned, &FEATURES, contrib, plant, seed, GENERATOR);
+        let answer = MismatchAnswer::new(i, planned, &FEATURES, contrib, plant, seed, GENERATOR);
         Ok(MismatchCase { data, answer })
     })
-    .into_iter()
-    .collect()
 }
 
 #[cfg(test)]

@@ -216,13 +216,10 @@ pub struct MismatchCase {
 
 /// Generate the set ([`mismatch::plan`]), plus the pair power law + saturating slip.
 pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError> {
-    if !(0.0..0.9).contains(&opts.spread) || opts.noise_mm3_s.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-        return Err(ModelError::invalid("mismatch options", format!("{opts:?}"), "need spread in [0, 0.9), noise > 0"));
-    }
     let (t_s, feed) = super::hidden::protocol(SAMPLE_DT_S)?;
     let pairs = [[("nonlinear_pressure", 0.6), ("filament_slip", 0.08)]];
     let plan = mismatch::plan(&FEATURES, &OUTSIDE, magnitudes, &opts.noise_mm3_s, opts.replicates, opts.null_cases, &pairs);
-    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, planned)| make_case(opts, *i, planned, &t_s, &feed)).into_iter().collect()
+    mismatch::generate_cases(opts, opts.spread, &opts.noise_mm3_s, &plan, |i, planned| make_case(opts, i, planned, &t_s, &feed))
 }
 
 fn make_case(opts: &MismatchOptions, i: usize, planned: &Planned, t_s: &[f64], feed: &[f64]) -> Result<MismatchCase, ModelError> {

@@ -307,13 +307,10 @@ pub struct MismatchCase {
 
 /// Generate the set ([`mismatch::plan`]), plus the pair Coulomb friction + cogging.
 pub fn generate(opts: &MismatchOptions) -> Result<Vec<MismatchCase>, ModelError> {
-    if !(0.0..0.9).contains(&opts.spread) || opts.noise_mm.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
-        return Err(ModelError::invalid("mismatch options", format!("{opts:?}"), "need spread in [0, 0.9), noise > 0"));
-    }
     let (t_s, cmd_mm) = super::hidden::protocol(SAMPLE_DT_S)?;
     let pairs = [[("coulomb_friction", 3.0), ("cogging", 1.5)]];
     let plan = mismatch::plan(&FEATURES, &OUTSIDE, magnitudes, &opts.noise_mm, opts.replicates, opts.null_cases, &pairs);
-    crate::parallel::par_map(&plan.iter().enumerate().collect::<Vec<_>>(), |(i, planned)| make_case(opts, *i, planned, &t_s, &cmd_mm)).into_iter().collect()
+    mismatch::generate_cases(opts, opts.spread, &opts.noise_mm, &plan, |i, planned| make_case(opts, i, planned, &t_s, &cmd_mm))
 }
 
 fn make_case(opts: &MismatchOptions, i: usize, planned: &Planned, t_s: &[f64], cmd_mm: &[f64]) -> Result<MismatchCase, ModelError> {
