@@ -130,7 +130,7 @@ pub fn eval_bench(a: EvalBenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let task = Task::default();
     let mut params = net::default_params(7);
     params.train.epochs = 1;
-    let (model, _) = evaluate::train_and_tune(&train, &tune, &task, &params.check()?, &evaluate::DEFAULT_BLOCKS, &mut |_| {})?;
+    let (model, _) = evaluate::train_and_tune(&train, &tune, &[], &task, &params.check()?, &evaluate::DEFAULT_BLOCKS, &mut |_| {})?;
     let refs: Vec<_> = train.iter().map(|m| junctions(m)).collect();
     let files = vec![("bench".to_string(), path)];
     let (cpu0, t) = (cpu_seconds(), Instant::now());

@@ -191,7 +191,8 @@ pub fn train(a: TrainArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let read_s = t0.elapsed().as_secs_f64();
     let mut bar = super::TrainBar::new(ctx, "turns train", 1, params.epochs());
     let t1 = Instant::now();
-    let (model, stages) = evaluate::train_and_tune(&data, &tune, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
+    let tune_names: Vec<String> = tune_files.iter().map(|f| f.display().to_string()).collect();
+    let (model, stages) = evaluate::train_and_tune(&data, &tune, &tune_names, &task, &params, &a.blocks, &mut |p| bar.epoch(p))?;
     let train_s = t1.elapsed().as_secs_f64();
     drop(bar);
     let json = stored::model_to_json(&model)?;
@@ -335,7 +336,7 @@ pub fn eval(a: EvalArgs, ctx: &Ctx) -> anyhow::Result<()> {
     }
     let value = serde_json::json!({
         "model": hash.0, "horizons": a.horizon, "blocks": a.blocks, "seed": a.seed,
-        "call_rules": rules.iter().map(|(b, h, r)| serde_json::json!({"blocks": b, "horizon": h, "threshold": finite(r.threshold), "gate": r.gate})).collect::<Vec<_>>(),
+        "call_rules": rules.iter().map(|(b, h, r)| serde_json::json!({"blocks": b, "horizon": h, "threshold": finite(r.threshold), "gate": r.gate, "width": r.width})).collect::<Vec<_>>(),
         "files": per_file.iter().enumerate().map(|(k, f)| serde_json::json!({
             "file": f.file, "junctions": f.junctions, "slicer": slicers[k],
             "scores": f.horizons.iter().map(scores_json).collect::<Vec<_>>(),
@@ -470,7 +471,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     drop(bar);
     // What `turns train` adds: the call thresholds for the default buffers.
     let t = Instant::now();
-    evaluate::tune_calls(&mut model, &data, &moves, &evaluate::DEFAULT_BLOCKS)?;
+    evaluate::tune_calls(&mut model, &data, &moves, &[], &evaluate::DEFAULT_BLOCKS)?;
     let tune_s = t.elapsed().as_secs_f64();
     // Inference: burn in batches vs the exported C header on the same rows.
     let sample = &corpus[0];

@@ -279,9 +279,10 @@ fn bad_input_is_named_and_exits_2() {
 /// The bundled `turn-prediction` run (trained on some model families, its and
 /// every baseline's thresholds tuned on another, scored on two families it never
 /// saw, every slicer in each): the network beats every tuned non-trivial
-/// baseline on angle MAE and corner F1 at every horizon, and its gated calls
-/// lower the pooled line-width error at 2 blocks and raise it at no buffer
-/// (docs/turns.md; per file, up to 2 of 6 files are worse at 2 blocks).
+/// baseline on angle MAE and corner F1 at every horizon, and its calls raise
+/// the line-width error of no held-out file at any buffer (docs/turns.md: on
+/// this spec's 8 tuning files no rule's leave-one-file-out gain reaches the
+/// effect floor, so it abstains and the pooled gain is 0).
 pub fn network_beats_every_baseline(runs: &serde_json::Value) {
     let run = runs.as_array().and_then(|r| r.iter().find(|r| r["spec_path"].as_str().is_some_and(|p| p.ends_with("turn-prediction.toml")))).expect("turn run");
     let m = &run["stages"][1]["metrics"];
@@ -291,13 +292,11 @@ pub fn network_beats_every_baseline(runs: &serde_json::Value) {
             assert!(get(&format!("network_mae_h{h}")) < get(&format!("{b}_mae_h{h}")), "MAE at H {h} vs {b}");
             assert!(get(&format!("network_f1_h{h}")) > get(&format!("{b}_f1_h{h}")), "F1 at H {h} vs {b}");
         }
-        // The gated call rules (docs/turns.md) lower the pooled width at 2 blocks at
-        // every H and never raise it; per file they no longer keep every held-out
-        // file at or below the buffer alone (1–2 of 6 at 2 blocks: not met, documented).
+        // Do no harm (docs/turns.md): no held-out file above the buffer alone at
+        // any buffer and H, and the pooled width never raised.
         for buf in ["", "_b4", "_b2"] {
             assert!(get(&format!("network_gain_pp_h{h}{buf}")) <= 1e-9, "pooled width at H {h}{buf}");
-            assert!(get(&format!("network_files_worse_h{h}{buf}")) <= 2.0, "files made worse at H {h}{buf}");
+            assert_eq!(get(&format!("network_files_worse_h{h}{buf}")), 0.0, "files made worse at H {h}{buf}");
         }
-        assert!(get(&format!("network_gain_pp_h{h}_b2")) < -0.1, "pooled width at H {h}, 2 blocks");
     }
 }

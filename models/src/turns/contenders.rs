@@ -26,6 +26,9 @@ pub struct MethodThreshold {
     /// The call gate of a corner-call rule ([`super::gate`]; none: every call acts).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gate: Option<super::gate::Gate>,
+    /// The width gate of a corner-call rule ([`super::gate::WidthGate`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub width: Option<super::gate::WidthGate>,
 }
 
 /// The baselines' settings, tuned as the network's are and stored with it:
@@ -50,7 +53,7 @@ impl BaselineTuning {
     /// `method`'s corner-call rule at `blocks` and `horizon`, if tuned.
     pub fn call_rule(&self, method: &str, blocks: usize, horizon: usize) -> Option<super::gate::CallRule> {
         let t = self.call_thresholds.iter().find(|t| t.method == method && t.blocks == blocks && t.horizon == horizon)?;
-        Some(super::gate::CallRule { threshold: t.threshold, gate: t.gate })
+        Some(super::gate::CallRule { threshold: t.threshold, gate: t.gate, width: t.width })
     }
 }
 

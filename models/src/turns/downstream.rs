@@ -405,6 +405,11 @@ impl<'a> Outcomes<'a> {
         Outcomes { fw, j, h, window_mm, ex: *ex, without, with: range.map(|_| std::cell::OnceCell::new()).collect() }
     }
 
+    /// Sharp corners among the callable junctions (what the width error is per).
+    pub fn sharp(&self) -> usize {
+        self.without.iter().filter(|o| o.sharp).count()
+    }
+
     fn get(&self, idx: usize, called: bool) -> &Outcome {
         let k = idx - self.h;
         if called {
@@ -530,7 +535,7 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let ex = Extrusion::default();
-        let every = CallRule { threshold: 0.5, gate: None };
+        let every = CallRule::ungated(0.5);
         let small = downstream("calls", &j, &Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex), &pred, &every, 0.0, &ex);
         let marlin = downstream("calls", &j, &Firmware::new(&reference_planner(16).expect("planner"), &moves, &j, &ex), &pred, &every, 0.0, &ex);
         for d in [&small, &marlin] {
@@ -563,10 +568,10 @@ mod tests {
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: vec![1.0; anchors.len()], anchors, threshold: 0.5 };
         let ex = Extrusion::default();
         let fw = Firmware::new(&reference_planner(2).expect("planner"), &line, &j, &ex);
-        let gated = CallRule { threshold: 0.5, gate: Some(gate::Gate { credit: 2.0, false_cost: 1.0 }) };
+        let gated = CallRule { gate: Some(gate::Gate { credit: 2.0, false_cost: 1.0 }), ..CallRule::ungated(0.5) };
         let d = downstream("calls", &j, &fw, &pred, &gated, 0.0, &ex);
         assert_eq!((d.sharp, d.false_calls, d.withheld), (0, h + 3, pred.anchors.len() - h - 3), "{d:?}");
-        let all = downstream("calls", &j, &fw, &pred, &CallRule { threshold: 0.5, gate: None }, 0.0, &ex);
+        let all = downstream("calls", &j, &fw, &pred, &CallRule::ungated(0.5), 0.0, &ex);
         assert_eq!(all.false_calls, pred.anchors.len());
         // On the squares every call is on a corner a 2-block buffer learns of too
         // late: every verdict is useful and the gate, however started, acts on
@@ -578,7 +583,7 @@ mod tests {
         let called: Vec<f64> = anchors.iter().map(|&i| if j[i + h].turn_deg > SHARP_DEG { 1.0 } else { 0.0 }).collect();
         let pred = HorizonPrediction { horizon: h, angle_deg: vec![0.0; anchors.len()], corner_probability: called, anchors, threshold: 0.5 };
         let fw = Firmware::new(&reference_planner(2).expect("planner"), &moves, &j, &ex);
-        let open = CallRule { threshold: 0.5, gate: Some(gate::Gate { credit: 0.0, false_cost: 8.0 }) };
+        let open = CallRule { gate: Some(gate::Gate { credit: 0.0, false_cost: 8.0 }), ..CallRule::ungated(0.5) };
         let (g, u) = (downstream("c", &j, &fw, &pred, &open, 0.0, &ex), downstream("c", &j, &fw, &pred, &CallRule { gate: None, ..open }, 0.0, &ex));
         assert_eq!((g.withheld, g.late_predicted, g.width_error_predicted), (0, u.late_predicted, u.width_error_predicted));
     }

@@ -5,7 +5,7 @@ use super::baselines::Prediction;
 use super::contenders::{BaselineTuning, MethodThreshold};
 use super::downstream::{Downstream, Extrusion, Firmware, Outcomes};
 use super::features::{corner_target, Task};
-use super::gate::Step;
+use super::gate::{Step, TuneFile};
 use super::net::{CallThreshold, HorizonPrediction, TurnModel};
 use super::planner::{Lookahead, Planner, PlannerParams};
 use super::{Junction, Move};
@@ -153,7 +153,7 @@ pub use super::contenders::MethodPredictions;
 type FileOutcome = (FileEval, Vec<(Truth, Vec<MethodPredictions>)>, Vec<((usize, usize, usize), Downstream)>);
 
 /// One method's call candidates per tuning file (call-rule tuning).
-type PerFile = Vec<Vec<Step>>;
+type PerFile = Vec<TuneFile>;
 
 /// Method names, corner labels and every method's scores of one horizon (F1 tuning).
 type F1Data = (Vec<String>, Vec<bool>, Vec<Vec<f64>>);
@@ -451,13 +451,14 @@ pub fn leave_one_group_out(
         }
     }
     let without = |files: &GroupedFiles, g: &str| -> Vec<Vec<Move>> { files.iter().filter(|f| f.1 != g).map(|f| f.2.clone()).collect() };
+    let names_without = |files: &GroupedFiles, g: &str| -> Vec<String> { files.iter().filter(|f| f.1 != g).map(|f| f.0.clone()).collect() };
     let mut out = vec![];
     for g in groups {
         let (tr, tu) = (without(train, g), without(tune, g));
         if tr.is_empty() {
             return Err(ModelError::Shape(format!("every training file is from {g}: nothing to train on without it")));
         }
-        let (model, _) = train_and_tune(&tr, &tu, task, params, blocks, &mut |_| {})?;
+        let (model, _) = train_and_tune(&tr, &tu, &names_without(tune, g), task, params, blocks, &mut |_| {})?;
         let files: Vec<(String, Vec<Move>)> = test.iter().filter(|f| f.1 == g).map(|f| (f.0.clone(), f.2.clone())).collect();
         let refs: Vec<Vec<Junction>> = tr.iter().map(|m| super::junctions(m)).collect();
         let (summary, _) = evaluate(&files, &model, &refs, blocks, &task.horizons, params.seed())?;
@@ -470,10 +471,13 @@ pub fn leave_one_group_out(
 /// Train on the `train` files' junctions, tune the baselines' previous-layer
 /// match on them, then tune every method's thresholds for each buffer of
 /// `blocks` on the `tune` files ([`tune_calls`]; the training files when none
-/// are given).
+/// are given). `tune_names` name the tuning files (for [`family_groups`];
+/// empty: each file is its own group).
+#[allow(clippy::too_many_arguments)]
 pub fn train_and_tune(
     files: &[Vec<Move>],
     tune: &[Vec<Move>],
+    tune_names: &[String],
     task: &super::features::Task,
     params: &crate::nets::params::ValidTrainParams,
     blocks: &[usize],
@@ -483,8 +487,34 @@ pub fn train_and_tune(
     let junctions: Vec<Vec<Junction>> = files.iter().map(|m| super::junctions(m)).collect();
     let mut model = TurnModel::train(&junctions, task, params, on_epoch)?;
     let network_s = t0.elapsed().as_secs_f64();
-    let times = tune_calls(&mut model, &junctions, if tune.is_empty() { files } else { tune }, blocks)?;
+    let (tune, groups) = if tune.is_empty() { (files, vec![]) } else { (tune, family_groups(tune_names)) };
+    let times = tune_calls(&mut model, &junctions, tune, &groups, blocks)?;
     Ok((model, StageTimes { network_s, ..times }))
+}
+
+/// Cross-validation groups of files by name: the model family of a corpus
+/// file (`thin_features-1--slic3r--86.gcode.gz`: the model before `--`, less its
+/// `-<index>`, `thin_features`), else the file name itself (its own group).
+pub fn family_groups(names: &[String]) -> Vec<usize> {
+    let family = |name: &str| -> String {
+        let base = name.rsplit('/').next().unwrap_or(name);
+        let Some((model, _)) = base.split_once("--") else { return base.to_string() };
+        match model.rsplit_once('-') {
+            Some((family, index)) if !index.is_empty() && index.bytes().all(|b| b.is_ascii_digit()) => family.to_string(),
+            _ => model.to_string(),
+        }
+    };
+    let mut seen: Vec<String> = vec![];
+    names
+        .iter()
+        .map(|n| {
+            let f = family(n);
+            seen.iter().position(|s| *s == f).unwrap_or_else(|| {
+                seen.push(f);
+                seen.len() - 1
+            })
+        })
+        .collect()
 }
 
 /// Wall seconds of each stage of [`train_and_tune`] (for `turns train`'s
@@ -512,7 +542,10 @@ pub struct StageTimes {
 /// junctions ([`super::contenders::tune_previous_layer`]). A call is worth its
 /// false alarms only where the buffer would learn of corners late, so the call
 /// threshold depends on the buffer, not on F1.
-pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Move>], blocks: &[usize]) -> Result<StageTimes, ModelError> {
+///
+/// `groups` give each tuning file's cross-validation group ([`super::gate::tune`]
+/// leaves one group out at a time; empty or of another length: each file its own).
+pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Move>], groups: &[usize], blocks: &[usize]) -> Result<StageTimes, ModelError> {
     let clock = std::time::Instant::now();
     let lap = |since: &mut f64| {
         let now = clock.elapsed().as_secs_f64();
@@ -532,7 +565,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     let m = &*model;
     // Per file (on every core): per horizon, the methods' names, truth and
     // corner scores; per (buffer, horizon, method), its call candidates.
-    type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<Vec<Step>>>);
+    type FileTuning = (Vec<(Vec<String>, Vec<bool>, Vec<Vec<f64>>)>, Vec<Vec<(Vec<Step>, usize)>>);
     let per_file = crate::parallel::par_map(&indexed, |&moves| -> Result<FileTuning, ModelError> {
         let j = &super::junctions(moves);
         let mut knn_of = super::contenders::knn_predictions(&knn, j, &m.task);
@@ -550,7 +583,8 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             for (ps, raw) in &preds {
                 let outcomes = Outcomes::new(j, &fw, raw.horizon, m.task.corner_window_mm, &ex);
                 let floor = super::gate::THRESHOLDS[0];
-                gains.push(ps.iter().map(|p| outcomes.steps(&as_calls(p, raw, floor), floor)).collect());
+                let sharp = outcomes.sharp();
+                gains.push(ps.iter().map(|p| (outcomes.steps(&as_calls(p, raw, floor), floor), sharp)).collect());
             }
         }
         Ok((f1, gains))
@@ -573,8 +607,9 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             if gains.len() <= k {
                 gains.push(vec![vec![]; cell.len()]);
             }
-            for (dst, src) in gains[k].iter_mut().zip(cell) {
-                dst.push(src);
+            for (dst, (steps, sharp)) in gains[k].iter_mut().zip(cell) {
+                let group = if groups.len() == tune.len() { groups[dst.len()] } else { dst.len() };
+                dst.push(TuneFile { steps, sharp, group });
             }
         }
     }
@@ -585,7 +620,7 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             if name == NETWORK {
                 model.thresholds[slot] = threshold as f32;
             } else {
-                tuning.f1_thresholds.push(MethodThreshold { method: name.clone(), blocks: 0, horizon: horizons[slot], threshold, gate: None });
+                tuning.f1_thresholds.push(MethodThreshold { method: name.clone(), blocks: 0, horizon: horizons[slot], threshold, gate: None, width: None });
             }
         }
     }
@@ -593,12 +628,14 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
     let cells = blocks.iter().flat_map(|&n| horizons.iter().enumerate().map(move |(slot, &h)| (n, slot, h)));
     for ((blocks, slot, horizon), methods) in cells.zip(&gains) {
         for (name, files) in f1_data[slot].0.iter().zip(methods) {
-            let rule = super::gate::tune(files);
-            let (threshold, gate) = (rule.threshold.min(FAR_ABOVE_ONE), rule.gate);
+            let tuned = super::gate::tune(files);
+            let rule = tuned.rule;
+            let (threshold, gate, width) = (rule.threshold.min(FAR_ABOVE_ONE), rule.gate, rule.width);
             if name == NETWORK {
-                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold, gate });
+                let (tune_gain_pp, cv_gain_pp) = (Some(tuned.gain_pp), Some(tuned.cv_gain_pp));
+                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold, gate, width, tune_gain_pp, cv_gain_pp });
             } else {
-                tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold, gate });
+                tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold, gate, width });
             }
         }
     }
@@ -638,6 +675,23 @@ mod tests {
             downstream: vec![],
             traces: vec![],
         }
+    }
+
+    #[test]
+    fn tuning_files_group_by_model_family() {
+        let names: Vec<String> = [
+            "c/thin_features-0--prusa-slicer--80.gcode.gz",
+            "c/loft-3--cura-engine--12.gcode.gz",
+            "c/thin_features-11--slic3r--86.gcode.gz",
+            "arcs-0--synthetic.gcode.gz",
+            "my-print.gcode",
+            "other/my-print.gcode",
+            "benchy.gcode",
+        ]
+        .map(String::from)
+        .to_vec();
+        // Same family, same group; a file outside the corpus's naming is grouped by its name.
+        assert_eq!(family_groups(&names), vec![0, 1, 0, 2, 3, 3, 4]);
     }
 
     #[test]

@@ -63,9 +63,18 @@ pub struct CallThreshold {
     pub blocks: usize,
     pub horizon: usize,
     pub threshold: f64,
-    /// The per-print call gate ([`super::gate`]; none in older models: every call acts).
+    /// The per-print count gate ([`super::gate`]; none in older models: every call acts).
     #[serde(default)]
     pub gate: Option<super::gate::Gate>,
+    /// The per-print width gate ([`super::gate::WidthGate`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub width: Option<super::gate::WidthGate>,
+    /// On the tuning files: the best harmless rule's gain and its cross-validated
+    /// gain, points of pooled width error ([`super::gate::Tuned`]; none in older models).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tune_gain_pp: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cv_gain_pp: Option<f64>,
 }
 
 /// Predictions of one horizon for anchors `i` (target junction `i + H`).
@@ -253,7 +262,7 @@ impl TurnModel {
     /// at `horizon` (tuned for that buffer, else every call at the F1 threshold).
     pub fn call_rule(&self, blocks: usize, horizon: usize) -> Result<CallRule, ModelError> {
         let tuned = self.call_thresholds.iter().find(|c| c.blocks == blocks && c.horizon == horizon);
-        Ok(tuned.map_or(CallRule { threshold: self.thresholds[self.slot(horizon)?] as f64, gate: None }, |c| CallRule { threshold: c.threshold, gate: c.gate }))
+        Ok(tuned.map_or(CallRule::ungated(self.thresholds[self.slot(horizon)?] as f64), |c| CallRule { threshold: c.threshold, gate: c.gate, width: c.width }))
     }
 
     /// How `method`'s corner calls drive the advance with a buffer of `blocks`
@@ -263,7 +272,7 @@ impl TurnModel {
         if method == NETWORK {
             return self.call_rule(blocks, horizon);
         }
-        Ok(self.baselines.as_ref().and_then(|b| b.call_rule(method, blocks, horizon)).unwrap_or(CallRule { threshold: fallback, gate: None }))
+        Ok(self.baselines.as_ref().and_then(|b| b.call_rule(method, blocks, horizon)).unwrap_or(CallRule::ungated(fallback)))
     }
 
     /// Weight size in bytes as float32 (weights, biases, standardisation).

@@ -212,7 +212,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
                 tune.push(moves_of_bytes(&input.file(path)?, name)?);
             }
             let on_epoch = &mut |pr: fdmlab_models::nets::train::Progress| input.progress(&format!("epoch {}/{} loss {:.4}", pr.epoch, pr.epochs, pr.loss));
-            let (model, _) = evaluate::train_and_tune(&data, &tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
+            let (model, _) = evaluate::train_and_tune(&data, &tune, &p.tune, &p.task, &p.settings, &p.blocks, on_epoch)?;
             let bpk = model.network()?.to_burnpack(&[])?;
             Ok(StageOutput::default()
                 .add("turn-model.json", "application/json", stored::model_to_json(&model)?)

@@ -50,7 +50,7 @@ fn c_header(m: &TurnModel, label: &str) -> String {
     let _ = writeln!(s, " * (a corner at or above threshold k of FDMLAB_TURNS_THRESHOLD_LIST, the F1-optimal one; an advance behind an");
     let _ = writeln!(
         s,
-        " * N-block planner acts on calls at FDMLAB_TURNS_CALL_THRESHOLD_BN, tuned for line width, while its per-print gate is open:\n * score = FDMLAB_TURNS_GATE_CREDIT_BN + useful calls - FDMLAB_TURNS_GATE_FALSE_COST_BN * false calls >= 0, each call\n * judged when its junction enters the buffer: useful on a sharp corner the buffer learns of too late, false with no\n * corner within the window). Weights: {} bytes of float32. */",
+        " * N-block planner acts on calls at FDMLAB_TURNS_CALL_THRESHOLD_BN, tuned for line width, while its per-print gate is open:\n * score = FDMLAB_TURNS_GATE_CREDIT_BN + useful calls - FDMLAB_TURNS_GATE_FALSE_COST_BN * false calls >= 0, each call\n * judged when its junction enters the buffer: useful on a sharp corner the buffer learns of too late, false with no\n * corner within the window) and its width gate is open: FDMLAB_TURNS_WIDTH_CREDIT_BN - the width change of every resolved call\n * (acted on or withheld) >= 0 and the acted ones' total <= FDMLAB_TURNS_WIDTH_STOP_LOSS_BN). Weights: {} bytes of float32. */",
         m.weight_bytes()
     );
     let _ = writeln!(s, "#ifndef FDMLAB_TURNS_H\n#define FDMLAB_TURNS_H\n#include <math.h>\n");
@@ -71,6 +71,12 @@ fn c_header(m: &TurnModel, label: &str) -> String {
         let cost = rules.iter().map(|r| r.and_then(|r| r.gate).map_or(0.0, |g| g.false_cost as f32));
         let _ = writeln!(s, "#define FDMLAB_TURNS_GATE_CREDIT_B{b} {{{}}}", c_floats(credit));
         let _ = writeln!(s, "#define FDMLAB_TURNS_GATE_FALSE_COST_B{b} {{{}}}", c_floats(cost));
+        // The width gate: act only while credit − Σ Δwidth of the resolved calls ≥ 0 and the
+        // resolved acted calls' Σ Δwidth ≤ stop-loss (none: 1e30 for both).
+        let width = rules.iter().map(|r| r.and_then(|r| r.width).map_or(1e30, |w| w.credit as f32));
+        let stop = rules.iter().map(|r| r.and_then(|r| r.width).and_then(|w| w.stop_loss).map_or(1e30, |b| b as f32));
+        let _ = writeln!(s, "#define FDMLAB_TURNS_WIDTH_CREDIT_B{b} {{{}}}", c_floats(width));
+        let _ = writeln!(s, "#define FDMLAB_TURNS_WIDTH_STOP_LOSS_B{b} {{{}}}", c_floats(stop));
     }
     let priors: Vec<String> = (0..h).map(|k| m.task.prior_index(k).to_string()).collect();
     let _ = writeln!(s, "static const int fdmlab_turns_prior[{h}] = {{{}}};", priors.join(", "));
