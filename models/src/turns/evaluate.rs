@@ -632,8 +632,8 @@ pub fn tune_calls(model: &mut TurnModel, train: &[Vec<Junction>], tune: &[Vec<Mo
             let rule = tuned.rule;
             let (threshold, gate, width) = (rule.threshold.min(FAR_ABOVE_ONE), rule.gate, rule.width);
             if name == NETWORK {
-                let (tune_gain_pp, cv_gain_pp) = (Some(tuned.gain_pp), Some(tuned.cv_gain_pp));
-                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold, gate, width, tune_gain_pp, cv_gain_pp });
+                let (tune_gain_pp, cv_gain_pp, cv_files_worse) = (Some(tuned.gain_pp), Some(tuned.cv_gain_pp), Some(tuned.cv_files_worse));
+                model.call_thresholds.push(CallThreshold { blocks, horizon, threshold, gate, width, tune_gain_pp, cv_gain_pp, cv_files_worse });
             } else {
                 tuning.call_thresholds.push(MethodThreshold { method: name.clone(), blocks, horizon, threshold, gate, width });
             }

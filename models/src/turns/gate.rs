@@ -231,6 +231,8 @@ pub struct Tuned {
     pub gain_pp: f64,
     /// Cross-validated gain: each group's files scored under the rule chosen without that group.
     pub cv_gain_pp: f64,
+    /// Cross-validated harm: the tuning files the rule chosen without their group makes worse.
+    pub cv_files_worse: usize,
 }
 
 /// Every rule [`tune`] tries, in tie-break order: per threshold, highest
@@ -259,8 +261,9 @@ pub fn rules() -> Vec<CallRule> {
 /// no harm), among [`rules`]; ties go to the earlier rule (fewer calls).
 /// [`NEVER`] when no rule lowers the total, or when the selection does not
 /// generalise: each group of files is scored under the rule this selection
-/// picks on the other groups (each file alone when all are one group), and the
-/// summed gain must reach [`MIN_GAIN_PP`].
+/// picks on the other groups (each file alone when all are one group); the
+/// summed gain must reach [`MIN_GAIN_PP`] and no file may be made worse (do no
+/// harm on a family the rule was not chosen on).
 pub fn tune(files: &[TuneFile]) -> Tuned {
     let rules = rules();
     // Per threshold, per file: each call with what has resolved (independent of the gates).
@@ -290,14 +293,20 @@ pub fn tune(files: &[TuneFile]) -> Tuned {
     };
     let sharp: f64 = files.iter().map(|f| f.sharp as f64).sum();
     let pp = |d: f64| if sharp > 0.0 { 100.0 * d / sharp } else { 0.0 };
-    let Some(chosen) = best(None) else { return Tuned { rule: NEVER, gain_pp: 0.0, cv_gain_pp: 0.0 } };
+    let Some(chosen) = best(None) else { return Tuned { rule: NEVER, gain_pp: 0.0, cv_gain_pp: 0.0, cv_files_worse: 0 } };
     let mut distinct = groups.clone();
     distinct.sort_unstable();
     distinct.dedup();
-    let held_out = |g: usize| best(Some(g)).map_or(0.0, |r| groups.iter().zip(&totals[r]).filter(|(&k, _)| k == g).map(|(_, d)| d).sum::<f64>());
-    let cv_gain_pp = pp(distinct.iter().map(|&g| held_out(g)).sum());
-    let rule = if cv_gain_pp <= -MIN_GAIN_PP { rules[chosen] } else { NEVER };
-    Tuned { rule, gain_pp: pp(totals[chosen].iter().sum()), cv_gain_pp }
+    // Each held-out file's change under the rule chosen without its group (none: 0).
+    let mut held_out = vec![];
+    for &g in &distinct {
+        let rule = best(Some(g));
+        held_out.extend(groups.iter().enumerate().filter(|(_, &k)| k == g).map(|(f, _)| rule.map_or(0.0, |r| totals[r][f])));
+    }
+    let cv_gain_pp = pp(held_out.iter().sum());
+    let cv_files_worse = held_out.iter().filter(|&&d| d > 1e-9).count();
+    let rule = if cv_gain_pp <= -MIN_GAIN_PP && cv_files_worse == 0 { rules[chosen] } else { NEVER };
+    Tuned { rule, gain_pp: pp(totals[chosen].iter().sum()), cv_gain_pp, cv_files_worse }
 }
 
 #[cfg(test)]
@@ -393,27 +402,46 @@ mod tests {
         }
     }
 
+    /// Tuning files of 200 calls at horizon `h`, one per (verdict, delta, group).
+    fn tune_files(h: usize, kinds: &[(Verdict, f32, usize)]) -> Vec<TuneFile> {
+        kinds.iter().map(|&(v, d, group)| TuneFile { steps: every_anchor(200, h, v, d), sharp: 200, group }).collect()
+    }
+
     #[test]
     fn tuning_keeps_a_file_of_false_calls_unharmed_where_others_pay() {
-        // Files 0 and 1: 200 useful calls worth −1 each; file 2: 200 false calls costing
-        // +0.1 each; 200 sharp corners each. Ungated, every threshold harms file 2. A gate
-        // that starts closed opens on files 0 and 1 and never on file 2; the least negative
-        // credit tried (−0.1 in width: one resolved rescue) acts on 200 − (H + 1) calls per file.
+        // Two families, each with a file of 200 useful calls worth −1 and one of 200
+        // false calls costing +0.1; 200 sharp corners each. Ungated, every threshold
+        // harms the false files. A gate that starts closed opens on the useful files
+        // and never on the false ones; the least negative credit tried (−0.1 in width:
+        // one resolved rescue) acts on 200 − (H + 1) calls per useful file.
         let h = 8;
-        let files: Vec<TuneFile> = [(Verdict::Useful, -1.0), (Verdict::Useful, -1.0), (Verdict::False, 0.1)]
-            .iter()
-            .enumerate()
-            .map(|(group, &(v, d))| TuneFile { steps: every_anchor(200, h, v, d), sharp: 200, group })
-            .collect();
+        let (useful, false_) = ((Verdict::Useful, -1.0), (Verdict::False, 0.1));
+        let files = tune_files(h, &[(useful.0, useful.1, 0), (false_.0, false_.1, 0), (useful.0, useful.1, 1), (false_.0, false_.1, 1)]);
         let t = tune(&files);
         assert!(t.rule.width.is_some_and(|w| w.credit < 0.0), "{t:?}");
-        assert!(total(&files[2].steps, &t.rule).abs() < 1e-12);
+        assert!(total(&files[1].steps, &t.rule).abs() < 1e-12 && total(&files[3].steps, &t.rule).abs() < 1e-12);
         let saved = (200 - h - 1) as f64;
         assert!((total(&files[0].steps, &t.rule) + saved).abs() < 1e-6, "{t:?}");
+        assert!((t.gain_pp - 100.0 * -2.0 * saved / 800.0).abs() < 1e-9, "{t:?}");
+        // Cross-validated: each family alone holds both kinds, so the rule chosen on
+        // one is the same gate and saves as much on the other, harming nothing.
+        assert!((t.cv_gain_pp - t.gain_pp).abs() < 1e-9 && t.cv_files_worse == 0, "{t:?}");
+    }
+
+    #[test]
+    fn a_rule_that_harms_a_family_it_was_not_chosen_on_never_calls() {
+        // Families 0 and 1: useful calls; family 2: false calls (as above). In sample
+        // the gate is harmless, but chosen without family 2 the best rule is ungated
+        // and costs it 200 × 0.1 = 20: a family unlike the others is harmed, so the
+        // method abstains, though the cross-validated gain still clears the floor.
+        let h = 8;
+        let files = tune_files(h, &[(Verdict::Useful, -1.0, 0), (Verdict::Useful, -1.0, 1), (Verdict::False, 0.1, 2)]);
+        let t = tune(&files);
+        assert_eq!(t.rule, NEVER, "{t:?}");
+        let saved = (200 - h - 1) as f64;
         assert!((t.gain_pp - 100.0 * -2.0 * saved / 600.0).abs() < 1e-9, "{t:?}");
-        // Cross-validated: without file 2 the ungated rule is best and costs file 2
-        // 200 × 0.1 = 20; without a useful file the gated rule saves `saved` on it.
-        assert!((t.cv_gain_pp - 100.0 * (20.0 - 2.0 * saved) / 600.0).abs() < 1e-6, "{t:?}");
+        assert!((t.cv_gain_pp - 100.0 * (20.0 - 2.0 * saved) / 600.0).abs() < 1e-6 && t.cv_gain_pp <= -MIN_GAIN_PP, "{t:?}");
+        assert_eq!(t.cv_files_worse, 1, "{t:?}");
     }
 
     #[test]

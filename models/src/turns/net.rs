@@ -75,6 +75,9 @@ pub struct CallThreshold {
     pub tune_gain_pp: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cv_gain_pp: Option<f64>,
+    /// On the tuning files: those made worse by the rule chosen without their family.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cv_files_worse: Option<usize>,
 }
 
 /// Predictions of one horizon for anchors `i` (target junction `i + H`).
