@@ -412,29 +412,23 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
         unit = unit.min(t.elapsed().as_secs_f64());
     }
     let mut times = Vec::with_capacity(cases.len());
-    let bar = ctx.progress().then(|| {
-        let bar = indicatif::ProgressBar::new(cases.len() as u64);
-        let style = indicatif::ProgressStyle::with_template("motion cases [{bar:30}] {pos}/{len} {msg} ({elapsed}, eta {eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
-        bar.set_style(style);
-        bar.enable_steady_tick(std::time::Duration::from_secs(1));
-        bar
-    });
+    let bar = super::Bar::new(ctx, cases.len() as u64, "motion cases [{bar:30}] {pos}/{len} {msg} ({elapsed}, eta {eta})");
+    if let Some(b) = bar.get() {
+        b.enable_steady_tick(std::time::Duration::from_secs(1));
+    }
     let total = Instant::now();
     for c in &cases {
-        if let Some(b) = &bar {
+        if let Some(b) = bar.get() {
             b.set_message(c.answer.id.clone());
         }
         let t = Instant::now();
         motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default())?;
         times.push((t.elapsed().as_secs_f64(), c.answer.id.clone()));
-        if let Some(b) = &bar {
+        if let Some(b) = bar.get() {
             b.inc(1);
         }
     }
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    drop(bar);
     let total = total.elapsed().as_secs_f64();
     let mut sorted: Vec<f64> = times.iter().map(|t| t.0).collect();
     sorted.sort_by(f64::total_cmp);

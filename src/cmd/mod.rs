@@ -130,35 +130,51 @@ impl TrainFlags {
     }
 }
 
-/// A training progress bar on stderr (only when [`Ctx::progress`]): one tick
-/// per epoch of every fit, with fold, epoch and loss in its message.
-pub struct TrainBar(Option<indicatif::ProgressBar>);
+/// A progress bar on stderr, only when [`Ctx::progress`]; cleared when dropped
+/// (also on an early error return).
+pub struct Bar(Option<indicatif::ProgressBar>);
 
-impl TrainBar {
-    /// A bar over `fits × epochs` epochs named `prefix`.
-    pub fn new(ctx: &Ctx, prefix: &str, fits: usize, epochs: usize) -> TrainBar {
-        TrainBar(ctx.progress().then(|| {
-            let bar = indicatif::ProgressBar::new((fits * epochs) as u64);
-            let style = indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
-            bar.set_style(style);
-            bar.set_prefix(prefix.to_string());
+impl Bar {
+    /// A bar of `len` steps drawn with the indicatif `template`.
+    pub fn new(ctx: &Ctx, len: u64, template: &str) -> Bar {
+        Bar(ctx.progress().then(|| {
+            let bar = indicatif::ProgressBar::new(len);
+            bar.set_style(indicatif::ProgressStyle::with_template(template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
             bar
         }))
     }
-    /// Record one epoch.
-    pub fn epoch(&mut self, p: fdmlab_models::nets::Progress) {
+    /// The bar, when one is drawn.
+    pub fn get(&self) -> Option<&indicatif::ProgressBar> {
+        self.0.as_ref()
+    }
+}
+
+impl Drop for Bar {
+    fn drop(&mut self) {
         if let Some(b) = &self.0 {
-            b.set_position(((p.fold - 1) * p.epochs + p.epoch) as u64);
-            b.set_message(format!("fold {}/{} epoch {}/{} loss {:.3e}", p.fold, p.folds, p.epoch, p.epochs, p.loss));
+            b.finish_and_clear();
         }
     }
 }
 
-impl Drop for TrainBar {
-    fn drop(&mut self) {
-        if let Some(b) = &self.0 {
-            b.finish_and_clear();
+/// A training progress bar: one tick per epoch of every fit, with fold, epoch
+/// and loss in its message.
+pub struct TrainBar(Bar);
+
+impl TrainBar {
+    /// A bar over `fits × epochs` epochs named `prefix`.
+    pub fn new(ctx: &Ctx, prefix: &str, fits: usize, epochs: usize) -> TrainBar {
+        let bar = Bar::new(ctx, (fits * epochs) as u64, "{prefix} [{bar:30}] {percent}% {msg} ({elapsed}, eta {eta})");
+        if let Some(b) = bar.get() {
+            b.set_prefix(prefix.to_string());
+        }
+        TrainBar(bar)
+    }
+    /// Record one epoch.
+    pub fn epoch(&mut self, p: fdmlab_models::nets::Progress) {
+        if let Some(b) = self.0.get() {
+            b.set_position(((p.fold - 1) * p.epochs + p.epoch) as u64);
+            b.set_message(format!("fold {}/{} epoch {}/{} loss {:.3e}", p.fold, p.folds, p.epoch, p.epochs, p.loss));
         }
     }
 }

@@ -119,7 +119,7 @@ fn the_extrusion_workflow_names_right_or_reports_unexplained_on_a_model_form_mis
 }
 
 #[test]
-#[ignore = "heavy: 33 cases, 33 cases per seed, 37-45 min per seed in a release test binary on a 2-core machine (the motion workflow's speed, issue #27 Deliver 8); passed once on each of seeds 7521 (27 of 29 right) and 7522 (28 of 29); figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "heavy: 33 cases per seed, 37-45 min per seed in a release test binary on a 2-core machine (the motion workflow's speed, issue #27 Deliver 8); passed once on each of seeds 7521 (27 of 29 right) and 7522 (28 of 29); figures in docs/discrepancy-domains.md; run with --ignored"]
 fn the_motion_workflow_names_right_or_reports_unexplained_on_a_model_form_mismatch_set() {
     check_mismatch_criteria("motion", &UNTOUCHED_MOTION_SEEDS);
 }

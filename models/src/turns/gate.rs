@@ -210,6 +210,10 @@ pub const STOP_LOSSES: [Option<f64>; 3] = [None, Some(0.0), Some(0.5)];
 /// false calls before the first verdict), so such a gain is not worth the risk.
 pub const MIN_GAIN_PP: f64 = 0.05;
 
+/// A file's change of the width defect (defect units) above this is harm, below
+/// its negative a gain: rounding of the summed deltas is neither.
+const HARM_TOL: f64 = 1e-9;
+
 /// The rule that never acts.
 pub const NEVER: CallRule = CallRule::ungated(f64::INFINITY);
 
@@ -279,10 +283,10 @@ pub fn tune(files: &[TuneFile]) -> Tuned {
     let groups: Vec<usize> = files.iter().enumerate().map(|(k, f)| if one_group { k } else { f.group }).collect();
     // The best harmless rule on the files outside group `skip`.
     let best = |skip: Option<usize>| -> Option<usize> {
-        let mut best = (None, -1e-9);
+        let mut best = (None, -HARM_TOL);
         for (r, t) in totals.iter().enumerate() {
             let kept = || groups.iter().zip(t).filter(|(&g, _)| Some(g) != skip).map(|(_, &d)| d);
-            if kept().all(|d| d <= 1e-9) {
+            if kept().all(|d| d <= HARM_TOL) {
                 let sum: f64 = kept().sum();
                 if sum < best.1 {
                     best = (Some(r), sum);
@@ -304,7 +308,7 @@ pub fn tune(files: &[TuneFile]) -> Tuned {
         held_out.extend(groups.iter().enumerate().filter(|(_, &k)| k == g).map(|(f, _)| rule.map_or(0.0, |r| totals[r][f])));
     }
     let cv_gain_pp = pp(held_out.iter().sum());
-    let cv_files_worse = held_out.iter().filter(|&&d| d > 1e-9).count();
+    let cv_files_worse = held_out.iter().filter(|&&d| d > HARM_TOL).count();
     let rule = if cv_gain_pp <= -MIN_GAIN_PP && cv_files_worse == 0 { rules[chosen] } else { NEVER };
     Tuned { rule, gain_pp: pp(totals[chosen].iter().sum()), cv_gain_pp, cv_files_worse }
 }
