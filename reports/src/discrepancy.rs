@@ -88,7 +88,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
     }
     if !r.effects.is_empty() || !r.not_significant.is_empty() {
         let mut g = Table::new(
-            "Does each effect earn its name? Contribution (with − without, final model) against the noise σ, confidence interval, physical range",
+            "Does each effect earn its name? Contribution (final model − the model refitted without it) against the noise σ, confidence interval, physical range",
             ["effect", "contribution / σ", "parameter", "value", "CI low", "CI high", "range", "verdict"],
         );
         let gated = r.effects.iter().filter_map(|e| e.gate.as_ref().map(|g| (e.name.as_str(), g, "named".to_string())));
@@ -98,7 +98,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
                 let range = format!("[{}, {}]", num(p.range_min, 3), num(p.range_max, 3));
                 g.push([
                     name.to_string(),
-                    num(gate.contribution_rms / gate.noise_sigma, 3),
+                    num(gate.contribution_refit_rms / gate.noise_sigma, 3),
                     p.name.clone(),
                     num(p.value, 4),
                     num(p.ci_low, 4),

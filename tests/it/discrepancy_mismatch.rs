@@ -11,10 +11,11 @@ use fdmlab_models::discrepancy::{extrusion, motion, thermal, Report, ValidSelect
 use fdmlab_models::parallel::par_map;
 
 /// Seeds of the graded thermal sets. UNTOUCHED: they were not run while the
-/// workflow, its gate or this generator were developed (development used seed 1);
-/// the figures in docs/discrepancy.md come from these. Add new seeds, never swap
-/// them for ones that pass.
-const UNTOUCHED_SEEDS: [u64; 2] = [7301, 7302];
+/// workflow, its gate or this generator were developed (development used seeds 1–12);
+/// the figures in docs/discrepancy.md come from these. 7301 and 7302 were graded
+/// once before the twin check and the refitted size test (19 of 29 right), 7303 and
+/// 7304 only after. Add new seeds, never swap them for ones that pass.
+const UNTOUCHED_SEEDS: [u64; 4] = [7301, 7302, 7303, 7304];
 
 /// As [`UNTOUCHED_SEEDS`] for the extrusion set (development used seeds 1 and 2).
 const UNTOUCHED_EXTRUSION_SEEDS: [u64; 2] = [7401, 7402];
@@ -108,7 +109,6 @@ fn grade_set(domain: &str, seed: u64) -> Vec<Graded> {
 }
 
 #[test]
-#[ignore = "Deliver 6 is not met on the mismatch set (measured once on the untouched seeds, 2026-12-03: right or honestly unexplained 19 of 29 graded, named exactly 10 of 20, false alarms 2 of 4, outside the library 4 of 5; docs/discrepancy.md); ~35 s: run with --ignored"]
 fn the_thermal_workflow_names_right_or_reports_unexplained_on_a_model_form_mismatch_set() {
     check_mismatch_criteria("thermal", &UNTOUCHED_SEEDS);
 }

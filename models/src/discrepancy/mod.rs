@@ -155,6 +155,18 @@ pub trait Domain {
     fn join(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked) -> Option<Self::Model> {
         None
     }
+    /// The effect that stands in for `effect` to first order (e.g. a dead time for a
+    /// first-order lag: both delay the response by about their time), as the start
+    /// [`Domain::augment`] takes in its place, seeded from `effect`'s value in `model`
+    /// ([`twin_check`]). `None` (the default): no twin.
+    fn twin(&self, _model: &Self::Model, _effect: &str) -> Option<Ranked> {
+        None
+    }
+    /// Whether [`gate`] measures an effect's size with the rest refitted without it
+    /// (the default) rather than only switched off.
+    fn refit_contribution(&self) -> bool {
+        true
+    }
 }
 
 /// Fit, RMS and whiteness of one model on the data.
@@ -422,14 +434,19 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             r_cur = r1;
         }
     }
+    twin_check(domain, &y, &mut effects, &mut ambiguous, &mut current, &mut r_cur);
     // Every named effect must earn its name at the final model (size, confidence,
     // physics); the weakest failing one is dropped and the rest refitted, until all pass.
     let mut not_significant = Vec::new();
     while !effects.is_empty() {
         let names: Vec<String> = effects.iter().map(|e| e.name.clone()).collect();
         let gates = gate::check(domain, &current, &names, &y, sigma, opts.alpha());
-        let failing =
-            gates.iter().enumerate().filter(|(_, g)| !g.passed()).min_by(|a, b| a.1.contribution_rms.total_cmp(&b.1.contribution_rms)).map(|(i, _)| i);
+        let failing = gates
+            .iter()
+            .enumerate()
+            .filter(|(_, g)| !g.passed())
+            .min_by(|a, b| a.1.contribution_refit_rms.total_cmp(&b.1.contribution_refit_rms))
+            .map(|(i, _)| i);
         let Some(i) = failing else {
             for (e, g) in effects.iter_mut().zip(gates) {
                 e.gate = Some(g);
@@ -474,6 +491,50 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         model_after: current,
         report,
     })
+}
+
+/// Every named effect with a [`Domain::twin`] not named beside it is swapped for its
+/// twin at the final model and refitted. The two fits differ by the effective BIC
+/// `n_eff·|ln(SSE_a/SSE_b)|` (`n_eff` of the better residual: a model-form residual,
+/// autocorrelated over minutes, holds far fewer independent samples than readings). The
+/// better is kept when that exceeds [`DECISIVE_BIC`]; otherwise the data cannot tell
+/// the twins apart at the model the workflow ends with, so both are reported
+/// `ambiguous`, neither is named and the rest is refitted without them. At the first
+/// round the twin was judged beside fewer effects, on a residual that still held them.
+fn twin_check<D: Domain>(domain: &D, y: &[f64], effects: &mut Vec<Effect>, ambiguous: &mut Vec<Vec<String>>, current: &mut D::Model, r_cur: &mut Vec<f64>) {
+    let sse = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>().max(f64::MIN_POSITIVE);
+    let mut i = 0;
+    while i < effects.len() {
+        let name = effects[i].name.clone();
+        let twin = domain.twin(current, &name).filter(|t| !effects.iter().any(|e| e.name == t.name));
+        let alt = twin.as_ref().and_then(|t| {
+            let m = domain.augment(&domain.without(current, &name), t).ok()?;
+            let sim = domain.simulate(&m);
+            (sim.len() == y.len() && sim.iter().all(|v| v.is_finite())).then(|| (m, residual(y, &sim)))
+        });
+        let (Some(t), Some((m, r_alt))) = (twin, alt) else {
+            i += 1;
+            continue;
+        };
+        let alt_better = sse(&r_alt) < sse(r_cur);
+        let n_eff = stats::effective_samples(if alt_better { &r_alt } else { r_cur.as_slice() }).min(y.len() as f64);
+        let gap = n_eff * (sse(&r_alt) / sse(r_cur)).ln().abs();
+        if gap <= DECISIVE_BIC {
+            ambiguous.push(vec![name.clone(), t.name.clone()]);
+            effects.remove(i);
+            *current = domain.remove(current, &name).unwrap_or_else(|_| domain.without(current, &name));
+            *r_cur = residual(y, &domain.simulate(current));
+            continue;
+        }
+        if alt_better {
+            effects[i].name = t.name.clone();
+            effects[i].evidence.insert("swapped_for_twin".into(), 1.0);
+            *current = m;
+            *r_cur = r_alt;
+        }
+        effects[i].evidence.insert("delta_bic_vs_twin".into(), gap);
+        i += 1;
+    }
 }
 
 /// `model` with its residual on `y` and BIC change from `r0` (`k` parameters added),

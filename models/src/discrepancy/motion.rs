@@ -549,6 +549,11 @@ impl Domain for MotionDomain {
         effects.push(e);
         identify_grown(&self.data, &seeded, &effects)
     }
+    fn refit_contribution(&self) -> bool {
+        // A motion refit is hundreds of simulations (seconds to minutes a case, issue
+        // #27 Deliver 8): the size test keeps the switched-off contribution, an upper bound.
+        false
+    }
     fn rivals(&self, effect: &str) -> &'static [&'static str] {
         // A Stribeck excess at a high velocity is a Coulomb level; linearised at the
         // candidate's small probe it cannot show the stick-slip a large one makes.

@@ -541,6 +541,16 @@ impl Domain for ThermalData {
         self.refit(&m)
     }
 
+    fn twin(&self, model: &ThermalModel, effect: &str) -> Option<Ranked> {
+        // A thermistor lag τ and a heater dead time θ ≈ τ delay a slow block's response alike.
+        let twin = match effect {
+            "sensor_lag" => "dead_time",
+            "dead_time" => "sensor_lag",
+            _ => return None,
+        };
+        Some(Ranked { name: twin.into(), err: 0.0, p_value: 0.0, delta_bic: 0.0, coefficients: vec![model.effect(effect)?] })
+    }
+
     fn effect_parameters(&self, model: &ThermalModel, effect: &str) -> BTreeMap<String, f64> {
         let mut out = BTreeMap::new();
         if let Some(v) = model.effect(effect) {
