@@ -88,8 +88,8 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
     }
     if !r.effects.is_empty() || !r.not_significant.is_empty() {
         let mut g = Table::new(
-            "Does each effect earn its name? Contribution (final model − the model refitted without it) against the noise σ, confidence interval, physical range",
-            ["effect", "contribution / σ", "parameter", "value", "CI low", "CI high", "range", "verdict"],
+            "Does each effect earn its name? Contribution (final model − the model refitted without it) against the final residual's RMS, confidence interval, physical range",
+            ["effect", "contribution / residual RMS", "parameter", "value", "CI low", "CI high", "range", "verdict"],
         );
         let gated = r.effects.iter().filter_map(|e| e.gate.as_ref().map(|g| (e.name.as_str(), g, "named".to_string())));
         let rejected = r.not_significant.iter().map(|n| (n.name.as_str(), &n.gate, "not significant".to_string()));
@@ -98,7 +98,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
                 let range = format!("[{}, {}]", num(p.range_min, 3), num(p.range_max, 3));
                 g.push([
                     name.to_string(),
-                    num(gate.contribution_refit_rms / gate.noise_sigma, 3),
+                    num(gate.contribution_refit_rms / gate.residual_rms, 3),
                     p.name.clone(),
                     num(p.value, 4),
                     num(p.ci_low, 4),
@@ -112,7 +112,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
         let margin = r.effects.iter().filter_map(|e| e.gate.as_ref()).chain(r.not_significant.iter().map(|n| &n.gate)).next();
         if let Some(gate) = margin {
             doc.paragraph(format!(
-                "An effect is named only if its contribution is at least {}× the noise σ, its {} % confidence region (residual variance inflated for {} effective of {} samples) excludes zero and its parameters lie in their physical ranges.",
+                "An effect is named only if its contribution is at least {}× the final residual's RMS, its {} % confidence region (residual variance inflated for {} effective of {} samples) excludes zero and its parameters lie in their physical ranges.",
                 num(gate.margin, 2),
                 num(100.0 * gate.confidence, 3),
                 num(gate.effective_samples, 4),

@@ -203,7 +203,7 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         for (i, e) in r.effects.iter().enumerate() {
             let params: Vec<String> = e.parameters.iter().map(|(k, v)| format!("{k} = {v:.4e}")).collect();
-            let size = e.gate.as_ref().map_or(String::new(), |g| format!("; contribution {:.2}× noise", g.contribution_refit_rms / g.noise_sigma));
+            let size = e.gate.as_ref().map_or(String::new(), |g| format!("; contribution {:.2}× the residual", g.contribution_refit_rms / g.residual_rms));
             s.push_str(&format!("{}. {}  ({}{size})\n", i + 1, e.name, params.join(", ")));
         }
         for n in &r.not_significant {

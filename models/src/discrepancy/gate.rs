@@ -3,19 +3,25 @@
 //!
 //! 1. **Size.** Its contribution — the RMS of the final model simulated with it
 //!    minus the model without it, every other parameter re-identified — is at least
-//!    [`CONTRIBUTION_MARGIN`] times the noise scale. Refitted, because what the
+//!    [`CONTRIBUTION_MARGIN`] times the final residual's RMS. Refitted, because what the
 //!    others absorb when it is gone was never its to explain: a heater saturation
 //!    `u − c·u²` with c = 0.02 moves the simulated temperature by 1.7 °C when simply
 //!    switched off, but the heating rate re-tuned takes all but 0.12 °C of it (a
 //!    model-form curvature of the loss, not a heater). The answers of the hidden and
 //!    mismatch sets measure an effect's size the same way. Where the domain
 //!    declines the refit ([`super::Domain::refit_contribution`]) the contribution is
-//!    taken with nothing refitted (an upper bound). The noise scale is the smaller of the noise σ
-//!    estimated from the data and the RMS of the final residual. Both bound the
-//!    noise from above, each in its own way — σ̂ from second differences also sees a
-//!    signal with content at the sampling rate (on the motion hidden set, where even
-//!    the rests read several µm from sample to sample, 2.4–18× the true σ), the
-//!    residual also holds what the model misses — so the smaller is the tighter.
+//!    taken with nothing refitted (an upper bound). The scale is the RMS of the final
+//!    residual: the noise plus what the final model still misses. On a log the
+//!    library describes that is the noise; on a log of another model form it is the
+//!    model-form floor, and an effect smaller than what the model still cannot explain
+//!    cannot be told from that error. On four thermal mismatch logs (development
+//!    seeds) the wrongly named effects — a heater saturation standing for the loss's
+//!    curvature, a sensor lag or fan loss for a drifting ambient — contributed
+//!    0.6–1.2× the final residual's RMS, the right ones 3–24×; against σ̂ (3× smaller
+//!    there) all passed. The noise σ estimated from the data ([`Gate::noise_sigma`],
+//!    second differences) is reported beside it; it is no scale for the test, as it
+//!    also sees a signal with content at the sampling rate (on the motion hidden set
+//!    2.4–18× the true σ).
 //! 2. **Confidence.** The `1 − alpha` confidence region of its magnitude
 //!    parameter(s) excludes zero: Wald intervals from the output sensitivities at
 //!    the final model (every base parameter and every named effect's parameters
@@ -32,13 +38,12 @@ use crate::nonfinite;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-/// Contribution of an effect, in units of the noise σ, below which it is not named.
-/// An effect smaller than the measurement noise changes no single reading visibly,
-/// and the σ estimate (second differences) and a model-form residual carry errors of
-/// tens of percent, hence 1.5 rather than 1. The criteria grade effects whose part
-/// the base model cannot absorb exceeds 3σ; the with/without contribution is at least
-/// that part, so a graded effect keeps a factor 2 of headroom. Fixed before any
-/// evaluation set was run.
+/// Contribution of an effect, in units of the final residual's RMS, below which it is
+/// not named. An effect smaller than the measurement noise changes no single reading
+/// visibly, and a residual's RMS carries errors of tens of percent, hence 1.5 rather
+/// than 1. The criteria grade effects whose part the base model cannot absorb (the
+/// refitted contribution) exceeds 3σ, so a graded effect keeps a factor 2 of headroom
+/// where the model ends at the noise. Fixed before any evaluation set was run.
 pub const CONTRIBUTION_MARGIN: f64 = 1.5;
 
 /// One parameter of an effect as the domain exposes it for the test.
@@ -91,11 +96,10 @@ pub struct Gate {
     /// domain declines the refit).
     #[serde(with = "nonfinite::scalar", default)]
     pub contribution_refit_rms: f64,
-    /// Noise scale of the size test: the smaller of the noise σ estimated from the
-    /// data and [`Gate::residual_rms`].
+    /// Noise σ estimated from the data (second differences), for reference.
     #[serde(with = "nonfinite::scalar")]
     pub noise_sigma: f64,
-    /// RMS of the final model's residual.
+    /// RMS of the final model's residual: the size test's scale.
     #[serde(with = "nonfinite::scalar", default)]
     pub residual_rms: f64,
     /// [`CONTRIBUTION_MARGIN`].
@@ -107,7 +111,7 @@ pub struct Gate {
     pub effective_samples: f64,
     /// Per parameter: value, interval, range.
     pub parameters: Vec<ParameterCheck>,
-    /// Refitted contribution ≥ margin × the noise scale.
+    /// Refitted contribution ≥ margin × the final residual's RMS.
     pub size_ok: bool,
     /// The magnitude parameters' confidence region excludes zero.
     pub interval_ok: bool,
@@ -126,10 +130,11 @@ impl Gate {
         let mut out = Vec::new();
         if !self.size_ok {
             out.push(format!(
-                "contribution {:.3e} (the others refitted; {:.3e} switched off alone) is {:.2}× the noise scale {:.3e} (the smaller of σ̂ and the final residual's RMS), below the margin {}",
+                "contribution {:.3e} (the others refitted; {:.3e} switched off alone) is {:.2}× the final residual's RMS {:.3e} (noise σ̂ {:.3e}), below the margin {}",
                 self.contribution_refit_rms,
                 self.contribution_rms,
-                self.contribution_refit_rms / self.noise_sigma,
+                self.contribution_refit_rms / self.residual_rms,
+                self.residual_rms,
                 self.noise_sigma,
                 self.margin
             ));
@@ -183,13 +188,12 @@ fn inverse_normal(cols: &[Vec<f64>]) -> DMatrix<f64> {
 }
 
 /// The three tests for every effect in `named`, at `model` on the measured `y`
-/// (noise σ `sigma` estimated from the data), intervals at level `1 − alpha`.
+/// (noise σ `sigma` estimated from the data, reported), intervals at level `1 − alpha`.
 pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64], sigma: f64, alpha: f64) -> Vec<Gate> {
     let sim = domain.simulate(model);
     let r: Vec<f64> = y.iter().zip(&sim).map(|(a, b)| a - b).collect();
     let n = r.len() as f64;
     let residual_rms = stats::rms(&r);
-    let scale = sigma.min(residual_rms);
     let params: Vec<Vec<EffectParameter>> = named.iter().map(|e| domain.effect_columns(model, e)).collect();
     let mut cols = domain.own_columns(model);
     let first = cols.len();
@@ -241,12 +245,12 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
             Gate {
                 contribution_rms,
                 contribution_refit_rms,
-                noise_sigma: scale,
+                noise_sigma: sigma,
                 residual_rms,
                 margin: CONTRIBUTION_MARGIN,
                 confidence: 1.0 - alpha,
                 effective_samples: n_eff,
-                size_ok: contribution_refit_rms >= CONTRIBUTION_MARGIN * scale,
+                size_ok: contribution_refit_rms >= CONTRIBUTION_MARGIN * residual_rms,
                 interval_ok,
                 range_ok: parameters.iter().all(|p| p.in_range),
                 parameters,
