@@ -161,7 +161,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let file = names.join(", ");
     let model = a.model.as_deref().map(|m| load_model(m, ctx)).transpose()?;
     let t = Instant::now();
+    let spinner = super::Bar::spinner(ctx, format!("discrepancy workflow ({}) on {file}", domain.name()));
     let out = disc::run(domain, &files, model.as_ref().map(|(b, n, _)| (b.as_slice(), n.as_str())), &read, &opts)?;
+    drop(spinner);
     let wall = t.elapsed().as_secs_f64();
     for n in &out.notes {
         eprintln!("{n}");

@@ -143,6 +143,16 @@ impl Bar {
             bar
         }))
     }
+    /// A spinner with `msg` and the elapsed time, ticking on its own: for one long
+    /// step that reports no progress of its own (a motion case of the discrepancy workflow).
+    pub fn spinner(ctx: &Ctx, msg: String) -> Bar {
+        let bar = Bar::new(ctx, 0, "{spinner} {msg} ({elapsed})");
+        if let Some(b) = bar.get() {
+            b.set_message(msg);
+            b.enable_steady_tick(std::time::Duration::from_millis(200));
+        }
+        bar
+    }
     /// The bar, when one is drawn.
     pub fn get(&self) -> Option<&indicatif::ProgressBar> {
         self.0.as_ref()
