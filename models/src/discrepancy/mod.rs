@@ -502,23 +502,23 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
 /// `ambiguous`, neither is named and the rest is refitted without them. At the first
 /// round the twin was judged beside fewer effects, on a residual that still held them.
 fn twin_check<D: Domain>(domain: &D, y: &[f64], effects: &mut Vec<Effect>, ambiguous: &mut Vec<Vec<String>>, current: &mut D::Model, r_cur: &mut Vec<f64>) {
-    let sse = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>().max(f64::MIN_POSITIVE);
+    let sse = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
     let mut i = 0;
     while i < effects.len() {
         let name = effects[i].name.clone();
         let twin = domain.twin(current, &name).filter(|t| !effects.iter().any(|e| e.name == t.name));
         let alt = twin.as_ref().and_then(|t| {
             let m = domain.augment(&domain.without(current, &name), t).ok()?;
-            let sim = domain.simulate(&m);
-            (sim.len() == y.len() && sim.iter().all(|v| v.is_finite())).then(|| (m, residual(y, &sim)))
+            let r = simulated_residual(domain, y, &m)?;
+            Some((m, r))
         });
         let (Some(t), Some((m, r_alt))) = (twin, alt) else {
             i += 1;
             continue;
         };
         let alt_better = sse(&r_alt) < sse(r_cur);
-        let n_eff = stats::effective_samples(if alt_better { &r_alt } else { r_cur.as_slice() }).min(y.len() as f64);
-        let gap = n_eff * (sse(&r_alt) / sse(r_cur)).ln().abs();
+        // The worse fit's BIC over the better one's, n_eff of the better residual.
+        let gap = if alt_better { -delta_bic(r_cur, &r_alt, 0) } else { -delta_bic(&r_alt, r_cur, 0) };
         if gap <= DECISIVE_BIC {
             ambiguous.push(vec![name.clone(), t.name.clone()]);
             effects.remove(i);
@@ -537,14 +537,16 @@ fn twin_check<D: Domain>(domain: &D, y: &[f64], effects: &mut Vec<Effect>, ambig
     }
 }
 
+/// The residual of `model` on `y`, if its simulation is finite and of `y`'s length.
+fn simulated_residual<D: Domain>(domain: &D, y: &[f64], model: &D::Model) -> Option<Vec<f64>> {
+    let sim = domain.simulate(model);
+    (sim.len() == y.len() && sim.iter().all(|v| v.is_finite())).then(|| residual(y, &sim))
+}
+
 /// `model` with its residual on `y` and BIC change from `r0` (`k` parameters added),
 /// if its simulation is finite and the BIC falls: a refit that confirms an effect.
 fn confirmed<D: Domain>(domain: &D, y: &[f64], r0: &[f64], model: D::Model, k: usize) -> Option<(D::Model, Vec<f64>, f64)> {
-    let sim = domain.simulate(&model);
-    if sim.len() != y.len() || sim.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    let r1 = residual(y, &sim);
+    let r1 = simulated_residual(domain, y, &model)?;
     let d = delta_bic(r0, &r1, k);
     (d < 0.0).then_some((model, r1, d))
 }
