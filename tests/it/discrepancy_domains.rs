@@ -188,8 +188,9 @@ fn the_motion_command_names_hidden_coulomb_friction_and_halves_the_gap() {
     assert!(after < 0.5 * before && after < 1.5e-3, "rms {before} -> {after} mm");
 }
 
+/// ~25 s in a release test binary (was ~2.5 min and ignored before the speed changes
+/// of 2026-12-05).
 #[test]
-#[ignore = "~2.5 min; its case (stribeck-m2-n1um-0) is named alone through the library in motion_hidden_set_meets_the_issue_criteria, and the command path is tested on the Coulomb case: run with --ignored when the command's motion path changes"]
 fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() {
     // 10 N of Stribeck excess: the slow move stick-slips, which the Stribeck column
     // linearised at its 2 N probe cannot show; Coulomb friction ranks first and the
