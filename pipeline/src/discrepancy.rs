@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use fdmlab_datasets::thermal::{self as tlog, marlin::MarlinOptions, LogFormat, ReadOptions, Uniformity};
-use fdmlab_models::discrepancy::{self, Outcome, ValidSelectOptions};
+use fdmlab_models::discrepancy::{self, Outcome, ValidSelectOptions, Watch};
 use serde::{Deserialize, Serialize};
 
 pub use fdmlab_models::discrepancy::DomainName;
@@ -100,7 +100,14 @@ pub fn thermal_model(bytes: &[u8], name: &str) -> Result<discrepancy::thermal::T
 /// Run `domain` on `data` (each file's bytes and name, pooled as segments of
 /// one data set), from `model` (bytes and name) if given, else from the
 /// domain's base model.
-pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &str)>, read: &ReadSettings, opts: &ValidSelectOptions) -> Result<DomainRun> {
+pub fn run(
+    domain: DomainName,
+    data: &[(&[u8], &str)],
+    model: Option<(&[u8], &str)>,
+    read: &ReadSettings,
+    opts: &ValidSelectOptions,
+    watch: &Watch,
+) -> Result<DomainRun> {
     let label = data.iter().map(|(_, n)| *n).collect::<Vec<_>>().join(", ");
     if data.is_empty() {
         return Err(Error::bad_input("no data file given"));
@@ -116,7 +123,7 @@ pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &st
                 notes.extend(n.into_iter().map(|n| format!("{file}: {n}")));
             }
             let start = model.map(|(b, n)| thermal_model(b, n)).transpose()?;
-            let outcome = discrepancy::thermal::discrepancy(segments, start, opts)?;
+            let outcome = discrepancy::thermal::discrepancy(segments, start, opts, watch)?;
             finish(domain, &label, outcome, notes)
         }
         DomainName::Motion => {
@@ -129,7 +136,7 @@ pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &st
                     return Err(Error::bad_input(format!("the model is for the {:?} axis but {file} measures {:?}", m.axis, measured.axis)));
                 }
             }
-            let outcome = discrepancy::motion::discrepancy(measured, start, opts)?;
+            let outcome = discrepancy::motion::discrepancy(measured, start, opts, watch)?;
             finish(domain, &label, outcome, Vec::new())
         }
         DomainName::Extrusion => {
@@ -138,7 +145,7 @@ pub fn run(domain: DomainName, data: &[(&[u8], &str)], model: Option<(&[u8], &st
             let start = model
                 .map(|(b, n)| json_model::<discrepancy::extrusion::ExtrusionModel>(b, n, "an extrusion model ({\"params\": {k_s, k2_s2_per_mm3, slip_per_s}})"))
                 .transpose()?;
-            let outcome = discrepancy::extrusion::discrepancy(measured, start, opts)?;
+            let outcome = discrepancy::extrusion::discrepancy(measured, start, opts, watch)?;
             finish(domain, &label, outcome, Vec::new())
         }
     }

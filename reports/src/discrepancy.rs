@@ -126,11 +126,24 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
     if let Some(u) = &r.unexplained {
         let spans: Vec<String> = u.windows.iter().map(|w| format!("{}–{} s", num(w.start_s, 4), num(w.end_s, 4))).collect();
         doc.paragraph(format!(
-            "Unexplained: after the last effect the residual (RMS {} {unit}, {}× the noise σ) still leaves the noise band in {} window(s): {}. No candidate effect explains it.",
+            "Unexplained: after the last effect the residual (RMS {} {unit}, {}× the noise σ) still leaves the noise band in {} window(s): {}. {}",
             num(u.rms, 4),
             num(u.rms_to_noise, 3),
             u.windows.len(),
-            spans.join(", ")
+            spans.join(", "),
+            if r.stopped.is_some() {
+                "The search stopped at its time limit, so a candidate not tried may explain it."
+            } else {
+                "No candidate effect explains it."
+            }
+        ));
+    }
+    if let Some(s) = &r.stopped {
+        doc.paragraph(format!(
+            "Time limit: the search stopped after {} s, at: {}; not run: {}. The effects named by then passed the same gate as in a full run.",
+            num(s.limit_s, 4),
+            s.at,
+            s.skipped.join(", ")
         ));
     }
     let mut x = Table::new("Peak residual–input cross-correlation (95 % band ±1.96/√n)", ["input", "before", "lag", "after", "lag", "band"]);
@@ -165,6 +178,7 @@ mod tests {
                 after: m(99.0, 0.5),
                 not_significant: vec![],
                 unexplained: Some(Unexplained { rms: 0.5, rms_to_noise: 5.0 / 3.0, windows: vec![Window { start_s: 40.0, end_s: 55.0 }] }),
+                stopped: None,
             },
             ranking: vec![Ranked { name: "fan_cooling".into(), err: 0.9, p_value: 1e-20, delta_bic: -500.0, coefficients: vec![0.001] }],
             unit: "°C".into(),

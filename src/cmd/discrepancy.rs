@@ -5,7 +5,7 @@
 use super::values::{value_name, LogFormatArg};
 use super::Ctx;
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
-use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions};
+use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions, Watch};
 use fdmlab_models::thermal::twin::Twin;
 use fdmlab_pipeline::discrepancy::{self as disc, DomainName, ReadSettings};
 use fdmlab_pipeline::report;
@@ -73,6 +73,10 @@ struct RunArgs {
     /// Room temperature for logs that start hot, °C.
     #[arg(long = "ambient-c")]
     ambient_c: Option<f64>,
+    /// Stop searching for effects after this many seconds: the effects named by then
+    /// are gated and reported, with where the search stopped (default: no limit).
+    #[arg(long = "time-limit", value_name = "SECONDS")]
+    time_limit: Option<f64>,
 }
 
 /// `fdmlab discrepancy hidden`
@@ -147,6 +151,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         return Err(bad("--data FILE is required"));
     }
     let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity }.check().map_err(super::flag_error)?;
+    if let Some(t) = a.time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+        return Err(bad(format!("--time-limit: invalid value {t}: must be a finite number of seconds ≥ 0")));
+    }
     let read = ReadSettings {
         format: a.format.map(|f| value_name(&f)),
         interval_s: a.interval,
@@ -161,8 +168,15 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let file = names.join(", ");
     let model = a.model.as_deref().map(|m| load_model(m, ctx)).transpose()?;
     let t = Instant::now();
-    let spinner = super::Bar::spinner(ctx, format!("discrepancy workflow ({}) on {file}", domain.name()));
-    let out = disc::run(domain, &files, model.as_ref().map(|(b, n, _)| (b.as_slice(), n.as_str())), &read, &opts)?;
+    let title = format!("discrepancy workflow ({}) on {file}", domain.name());
+    let spinner = super::Bar::spinner(ctx, title.clone());
+    let show = |stage: &str| {
+        if let Some(b) = spinner.get() {
+            b.set_message(format!("{title}: {stage}"));
+        }
+    };
+    let watch = Watch::new(Some(&show), a.time_limit);
+    let out = disc::run(domain, &files, model.as_ref().map(|(b, n, _)| (b.as_slice(), n.as_str())), &read, &opts, &watch)?;
     drop(spinner);
     let wall = t.elapsed().as_secs_f64();
     for n in &out.notes {
@@ -189,8 +203,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         ("after.fit_percent".to_string(), r.after.fit_percent),
         ("not_significant".to_string(), r.not_significant.len() as f64),
         ("unexplained_windows".to_string(), r.unexplained.as_ref().map_or(0.0, |u| u.windows.len() as f64)),
+        ("stopped_at_time_limit".to_string(), f64::from(u8::from(r.stopped.is_some()))),
     ]);
-    let params = json!({"domain": domain.name(), "data": names, "model": a.model, "select": opts, "read": read});
+    let params = json!({"domain": domain.name(), "data": names, "model": a.model, "select": opts, "read": read, "time_limit_s": a.time_limit});
     let record = fdmlab_pipeline::runs::record_command(&store, "discrepancy", params, inputs, artifacts, metrics, wall)?;
     eprintln!("run {}", record.id);
     if let Some(dir) = &a.report {
@@ -216,6 +231,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         for g in &r.ambiguous {
             s.push_str(&format!("ambiguous: {}\n", g.join(" / ")));
+        }
+        if let Some(st) = &r.stopped {
+            s.push_str(&format!("time limit {} s reached at: {}; not run: {}\n", st.limit_s, st.at, st.skipped.join(", ")));
         }
         s.push_str(&format!(
             "before: fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\nafter:  fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\n",
@@ -377,7 +395,7 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let mut last = None;
     for _ in 0..a.repeat.max(1) {
         let t = Instant::now();
-        let o = fdmlab_models::discrepancy::thermal::discrepancy(vec![log.clone()], None, &ValidSelectOptions::default())?;
+        let o = fdmlab_models::discrepancy::thermal::discrepancy(vec![log.clone()], None, &ValidSelectOptions::default(), &Watch::default())?;
         best = best.min(t.elapsed().as_secs_f64());
         last = Some(o.report);
     }
@@ -424,7 +442,7 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
             b.set_message(c.answer.id.clone());
         }
         let t = Instant::now();
-        motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default())?;
+        motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default())?;
         times.push((t.elapsed().as_secs_f64(), c.answer.id.clone()));
         if let Some(b) = bar.get() {
             b.inc(1);

@@ -4,7 +4,7 @@
 use crate::common::{stderr, Sandbox};
 use fdmlab_models::discrepancy::hidden::{self, HiddenOptions};
 use fdmlab_models::discrepancy::thermal::discrepancy;
-use fdmlab_models::discrepancy::ValidSelectOptions;
+use fdmlab_models::discrepancy::{ValidSelectOptions, Watch};
 use fdmlab_models::thermal::twin::Twin;
 
 /// One case's verdict.
@@ -46,7 +46,7 @@ fn check_hidden_set(seed: u64) {
                     chunk
                         .iter()
                         .map(|c| {
-                            let o = discrepancy(vec![c.data.clone()], None, &ValidSelectOptions::default()).expect("workflow");
+                            let o = discrepancy(vec![c.data.clone()], None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
                             let mut named: Vec<String> = o.report.effects.iter().map(|e| e.name.clone()).collect();
                             named.sort();
                             let mut truth = c.answer.effects.clone();
@@ -160,6 +160,32 @@ fn a_real_style_pid_log_names_fan_cooling_first() {
     // within 5 % (quantised 0.1 °C readings, duty in 1/127 steps, σ = 0.3 °C).
     let g = v["effects"][0]["parameters"]["fan_loss_1_s"].as_f64().expect("fan loss");
     assert!((g / 1.25e-3 - 1.0).abs() < 0.05, "{g}");
+}
+
+#[test]
+fn a_time_limit_stops_the_search_says_where_and_changes_nothing_unreached() {
+    let sb = Sandbox::new();
+    sb.write("serial.log", &octoprint_log());
+    let args = ["discrepancy", "--domain", "thermal", "--data", "serial.log"];
+    let with = |limit: &'static str| [&args[..], &["--time-limit", limit]].concat();
+    // A limit the run does not reach leaves its answer as it is, field for field.
+    let full = sb.json(&args);
+    assert!(full.get("stopped").is_none(), "{full}");
+    assert_eq!(sb.json(&with("3600")), full);
+    // A limit passed before the first round: nothing is tried, nothing named, and the
+    // report says where the search stopped and what it skipped.
+    let stopped = sb.json(&with("0"));
+    assert_eq!(stopped["stopped"]["at"], "fitting the base model", "{stopped}");
+    assert_eq!(stopped["stopped"]["skipped"], serde_json::json!(["further selection rounds", "joint refit", "twin check"]));
+    assert_eq!(stopped["effects"], serde_json::json!([]));
+    assert_eq!(stopped["after"], stopped["before"]);
+    let text = sb.ok(&with("0"));
+    assert!(text.contains("time limit 0 s reached at: fitting the base model"), "{text}");
+    for bad in ["inf", "nan"] {
+        let out = sb.run(&with(bad));
+        assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+        assert!(stderr(&out).contains("--time-limit"), "{}", stderr(&out));
+    }
 }
 
 #[test]

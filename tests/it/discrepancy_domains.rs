@@ -9,7 +9,7 @@
 
 use fdmlab_models::discrepancy::extrusion::{self, hidden as ehidden};
 use fdmlab_models::discrepancy::motion::{self, hidden as mhidden};
-use fdmlab_models::discrepancy::{Report, ValidSelectOptions};
+use fdmlab_models::discrepancy::{Report, ValidSelectOptions, Watch};
 use fdmlab_models::parallel::par_map;
 
 /// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after.
@@ -114,7 +114,7 @@ fn motion_hidden_set_meets_the_issue_criteria() {
 fn motion_verdicts(seed: u64) -> Vec<Verdict> {
     let cases = mhidden::generate(&mhidden::HiddenConfig::small(seed)).expect("generate");
     par_map(&cases, |c| {
-        let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default()).expect("workflow");
+        let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
         verdict(&c.answer.id, truth, &out.report)
     })
@@ -133,7 +133,7 @@ fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
 fn extrusion_verdicts(seed: u64) -> Vec<Verdict> {
     let cases = ehidden::generate(&ehidden::HiddenConfig::small(seed)).expect("generate");
     par_map(&cases, |c| {
-        let out = extrusion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default()).expect("workflow");
+        let out = extrusion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm3_s / c.answer.noise_sd_mm3_s)).collect();
         verdict(&c.answer.id, truth, &out.report)
     })

@@ -7,7 +7,7 @@
 //! graded from `answers.json` only, on seeds never used while developing.
 
 use crate::common::Sandbox;
-use fdmlab_models::discrepancy::{extrusion, motion, thermal, Report, ValidSelectOptions};
+use fdmlab_models::discrepancy::{extrusion, motion, thermal, Report, ValidSelectOptions, Watch};
 use fdmlab_models::parallel::par_map;
 
 /// Seeds of the graded thermal sets. UNTOUCHED: they were not run while the
@@ -76,15 +76,15 @@ fn grade_set(domain: &str, seed: u64) -> Vec<Graded> {
         let report = match domain {
             "thermal" => {
                 let (log, _) = fdmlab_datasets::thermal::read_log(&text, &file, &Default::default()).expect("log");
-                thermal::discrepancy(vec![log], None, &opts).expect("workflow").report
+                thermal::discrepancy(vec![log], None, &opts, &Watch::default()).expect("workflow").report
             }
             "motion" => {
                 let data = fdmlab_datasets::discrepancy::motion::parse(&text, &file).expect("log");
-                motion::discrepancy(data, None, &opts).expect("workflow").report
+                motion::discrepancy(data, None, &opts, &Watch::default()).expect("workflow").report
             }
             _ => {
                 let data = fdmlab_datasets::discrepancy::extrusion::parse(&text, &file).expect("log");
-                extrusion::discrepancy(data, None, &opts).expect("workflow").report
+                extrusion::discrepancy(data, None, &opts, &Watch::default()).expect("workflow").report
             }
         };
         let a = &c["answer"];

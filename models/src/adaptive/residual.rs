@@ -127,7 +127,8 @@ pub fn lines(
     let noise = Normal::new(0.0, noise_sd_mm3_s).map_err(|e| ModelError::invalid("noise_sd_mm3_s", noise_sd_mm3_s, &e.to_string()))?;
     let mut rng = crate::rng::seeded(seed, 0);
     let flow: Vec<f64> = clean.iter().map(|q| q + noise.sample(&mut rng)).collect();
-    let out = discrepancy(ExtrusionData { t_s, feed_mm3_s: feed, flow_mm3_s: flow }, None, &ValidSelectOptions::default())?;
+    let out =
+        discrepancy(ExtrusionData { t_s, feed_mm3_s: feed, flow_mm3_s: flow }, None, &ValidSelectOptions::default(), &crate::discrepancy::Watch::default())?;
     let named: Vec<String> = out.report.effects.iter().map(|e| e.name.clone()).collect();
     let k2 = out.report.effects.iter().find(|e| e.name == "nonlinear_pressure").and_then(|e| e.parameters.get("k2_s2_per_mm3").copied());
     let k_s = out.report.effects.iter().find_map(|e| e.parameters.get("k_s").copied());

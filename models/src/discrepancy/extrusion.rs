@@ -323,6 +323,11 @@ impl Domain for ExtrusionDomain {
 }
 
 /// The workflow on extrusion data, from `model` if given, else from the base model.
-pub fn discrepancy(data: ExtrusionData, model: Option<ExtrusionModel>, opts: &ValidSelectOptions) -> Result<Outcome<ExtrusionModel>, ModelError> {
-    super::run(&ExtrusionDomain::new(data)?, model, opts)
+pub fn discrepancy(
+    data: ExtrusionData,
+    model: Option<ExtrusionModel>,
+    opts: &ValidSelectOptions,
+    watch: &super::Watch,
+) -> Result<Outcome<ExtrusionModel>, ModelError> {
+    super::run(&ExtrusionDomain::new(data)?, model, opts, watch)
 }

@@ -7,8 +7,8 @@
 //! holding its data, and exposes one function that the command calls:
 //!
 //! ```text
-//! pub fn discrepancy(data: …, model: Option<Model>, opts: &ValidSelectOptions) -> Result<Outcome<Model>, ModelError>
-//! //   = super::run(&TheDomain::new(data)?, model, opts)
+//! pub fn discrepancy(data: …, model: Option<Model>, opts: &ValidSelectOptions, watch: &Watch) -> Result<Outcome<Model>, ModelError>
+//! //   = super::run(&TheDomain::new(data)?, model, opts, watch)
 //! ```
 //! Its model type is plain serde data. The domain supplies:
 //! - the measured output (`measured`, in the data's unit), sample times and
@@ -60,13 +60,16 @@ pub mod simfit;
 pub mod stats;
 pub mod thermal;
 pub mod thermal_mismatch;
+pub mod watch;
 
 use crate::{nonfinite, ModelError};
 pub use gate::{EffectParameter, Gate};
 pub use select::{Candidate, Ranked, SelectOptions, Selection, ValidSelectOptions};
 use serde::{Deserialize, Serialize};
 use stats::{CrossCorrelation, Window};
+use std::cell::RefCell;
 use std::collections::BTreeMap;
+pub use watch::{Stopped, Watch};
 
 /// The workflow's domains: the one list, read by serde (the spec's
 /// `[discrepancy] domain`, stored records, hidden-set answers) and by clap
@@ -253,6 +256,10 @@ pub struct Report {
     /// The final residual where it still leaves the noise band; `null` if nowhere.
     #[serde(default)]
     pub unexplained: Option<Unexplained>,
+    /// Where a run with a time limit stopped searching; absent without a limit or
+    /// when the run finished within it ([`watch`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<Stopped>,
 }
 
 /// Everything a run computed: the [`Report`] plus the series and tables the
@@ -318,16 +325,27 @@ fn cross(domain_inputs: &[(String, Vec<f64>)], r: &[f64]) -> Vec<CrossCorrelatio
     domain_inputs.iter().map(|(name, u)| stats::cross_correlation(name, r, u, 20)).collect()
 }
 
-/// Run the workflow on a domain: from `model` if given, else from the base model.
-pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOptions) -> Result<Outcome<D::Model>, ModelError> {
+/// Run the workflow on a domain: from `model` if given, else from the base model;
+/// stages announced to `watch`, the search ended at its time limit.
+pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOptions, watch: &Watch) -> Result<Outcome<D::Model>, ModelError> {
     let y = domain.measured();
     let time_s = domain.time_s();
     if y.len() != time_s.len() || y.len() < 10 {
         return Err(ModelError::Shape(format!("need ≥ 10 samples with times, got {} samples and {} times", y.len(), time_s.len())));
     }
+    // The stage running now: announced, and named where the time limit stops the search.
+    let at = RefCell::new(String::new());
+    let announce = |s: String| {
+        watch.stage(&s);
+        *at.borrow_mut() = s;
+    };
+    let mut stopped: Option<Stopped> = None;
     let start = match model {
         Some(m) => m,
-        None => domain.fit_base()?,
+        None => {
+            announce("fitting the base model".into());
+            domain.fit_base()?
+        }
     };
     let sim0 = domain.simulate(&start);
     if sim0.len() != y.len() || sim0.iter().any(|v| !v.is_finite()) {
@@ -349,13 +367,25 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         if candidates.is_empty() {
             break;
         }
+        stopped = watch.stopped(&at.borrow(), &["further selection rounds", "joint refit", "twin check"]);
+        if stopped.is_some() {
+            break;
+        }
+        let number = effects.len() + 1;
+        announce(format!("round {number}: ranking {} candidate effect(s)", candidates.len()));
         let sel = select::select(&r_cur, &domain.base_columns(&current), &candidates, &round)?;
         if ranking.is_none() {
             ranking = Some(sel.ranking.clone());
         }
         let width = |name: &str| domain.fitted_parameters(name, candidates.iter().find(|c| c.name == name).map_or(1, |c| c.columns.len()));
         // Re-identify with one effect; keep it only if the nonlinear refit confirms it.
-        let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> { confirmed(domain, &y, &r_cur, domain.augment(&current, r).ok()?, width(&r.name)) };
+        let try_add = |r: &Ranked| -> Option<(D::Model, Vec<f64>, f64)> {
+            if watch.expired() {
+                return None;
+            }
+            announce(format!("round {number}: refitting `{}`", r.name));
+            confirmed(domain, &y, &r_cur, domain.augment(&current, r).ok()?, width(&r.name))
+        };
         if let Some(best) = sel.chosen.first() {
             // ERR ranks effects linearised at a small probe; for effects nonlinear in
             // their parameter (a lag and a dead time look alike there) the runner-ups
@@ -415,12 +445,20 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
     // beside them already) is refitted alone on the starting model and joined to the
     // named ones; the best join is kept if its BIC falls.
-    if !effects.is_empty() && effects.len() < opts.max_effects() && !stats::windows(&r_cur, sigma, &time_s).is_empty() {
+    let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && !stats::windows(&r_cur, sigma, &time_s).is_empty();
+    if join_due && stopped.is_none() {
+        stopped = watch.stopped(&at.borrow(), &["joint refit", "twin check"]);
+    }
+    if join_due && stopped.is_none() {
         let best = ranking
             .iter()
             .flatten()
             .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
             .filter_map(|r| {
+                if watch.expired() {
+                    return None;
+                }
+                announce(format!("joint refit of `{}` with the named effects", r.name));
                 let m = domain.join(&current, &start, r)?;
                 let (m, r1, d) = confirmed(domain, &y, &r_cur, m, domain.fitted_parameters(&r.name, r.coefficients.len()))?;
                 Some((r, m, r1, d))
@@ -434,11 +472,20 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             r_cur = r1;
         }
     }
-    twin_check(domain, &y, &mut effects, &mut ambiguous, &mut current, &mut r_cur);
+    if stopped.is_none() && !effects.is_empty() {
+        stopped = watch.stopped(&at.borrow(), &["twin check"]);
+    }
+    if stopped.is_none() {
+        if !effects.is_empty() {
+            announce("twin check of the named effects".into());
+        }
+        twin_check(domain, &y, &mut effects, &mut ambiguous, &mut current, &mut r_cur);
+    }
     // Every named effect must earn its name at the final model (size, confidence,
     // physics); the weakest failing one is dropped and the rest refitted, until all pass.
     let mut not_significant = Vec::new();
     while !effects.is_empty() {
+        announce(format!("gate: {} named effect(s)", effects.len()));
         let names: Vec<String> = effects.iter().map(|e| e.name.clone()).collect();
         let gates = gate::check(domain, &current, &names, &y, sigma, opts.alpha());
         let failing = gates
@@ -475,6 +522,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         after: metrics(&y, &sim1),
         not_significant,
         unexplained,
+        stopped,
     };
     Ok(Outcome {
         ranking: ranking.unwrap_or_default(),

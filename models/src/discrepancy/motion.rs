@@ -25,6 +25,7 @@ use axis::DEFAULT_STRIBECK_V_M_S;
 pub use axis::{AxisPlant, MotionEffects};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::time::Instant;
 
 /// Measured positions of one axis (mm) against its command (mm), at times `t_s`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -324,29 +325,33 @@ const GROW_PATIENCE: usize = 15;
 /// of a stick–slip case's time). Where the record is still missed, a second pass grows
 /// again from the first's estimate, kept if better: on the development seed's 10 N
 /// case it lands at the truth's residual where the first pass stops at 15–19 µm.
-pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionEffect]) -> Result<MotionModel, ModelError> {
+/// After `deadline` (if any) it fails instead of fitting the next horizon.
+pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], deadline: Option<Instant>) -> Result<MotionModel, ModelError> {
     let n = data.t_s.len();
     if !effects.contains(&MotionEffect::Stribeck) || n <= GROW_FIRST {
         return identify(data, model, effects);
     }
     let band = GROW_THRESHOLD * super::stats::noise_sigma(&data.meas_mm);
-    let first = grow(data, model, effects, band)?;
+    let first = grow(data, model, effects, band, deadline)?;
     let y = first.predict_mm(data)?;
     if y.iter().zip(&data.meas_mm).all(|(a, b)| (a - b).abs() <= band) {
         return Ok(first);
     }
     // Still missing samples: a second pass from the first's estimate, kept if better.
-    let second = grow(data, &first, effects, band)?;
+    let second = grow(data, &first, effects, band, deadline)?;
     Ok(if output_sse(data, &second)? < output_sse(data, &first)? { second } else { first })
 }
 
 /// One pass of [`identify_grown`] with the miss band `band` (mm).
-fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: f64) -> Result<MotionModel, ModelError> {
+fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: f64, deadline: Option<Instant>) -> Result<MotionModel, ModelError> {
     let n = data.t_s.len();
     let mut m = *model;
     let mut horizon = GROW_FIRST;
     let mut stuck = false;
     loop {
+        if super::watch::past(deadline) {
+            return Err(ModelError::Numerical(format!("time limit reached growing the Stribeck fit at {horizon} of {n} samples")));
+        }
         let part = MotionData {
             axis: data.axis,
             t_s: data.t_s[..horizon].to_vec(),
@@ -449,13 +454,15 @@ pub fn active_effects(model: &MotionModel) -> Vec<MotionEffect> {
 #[derive(Debug, Clone)]
 pub struct MotionDomain {
     data: MotionData,
+    /// When grown fits stop ([`identify_grown`]).
+    deadline: Option<Instant>,
 }
 
 impl MotionDomain {
     /// Check the data and hold them.
     pub fn new(data: MotionData) -> Result<Self, ModelError> {
         data.check()?;
-        Ok(Self { data })
+        Ok(Self { data, deadline: None })
     }
 }
 
@@ -567,7 +574,7 @@ impl Domain for MotionDomain {
             // first samples would only repeat the Stribeck search (seconds a case).
             identify(&self.data, &seeded, &effects)
         } else {
-            identify_grown(&self.data, &seeded, &effects)
+            identify_grown(&self.data, &seeded, &effects, self.deadline)
         }
     }
     fn refit_contribution(&self) -> bool {
@@ -600,7 +607,7 @@ impl Domain for MotionDomain {
             n.set(&mut seeded.effects, &n.get(&current.effects));
         }
         seeded.effects.stribeck_v_m_s = current.effects.stribeck_v_m_s;
-        let held = identify_grown(&self.data, &seeded, &named).ok()?;
+        let held = identify_grown(&self.data, &seeded, &named, self.deadline).ok()?;
         named.push(e);
         identify(&self.data, &held, &named).ok()
     }
@@ -622,8 +629,10 @@ impl Domain for MotionDomain {
 }
 
 /// The workflow on motion data, from `model` if given, else from the base model.
-pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &ValidSelectOptions) -> Result<Outcome<MotionModel>, ModelError> {
-    super::run(&MotionDomain::new(data)?, model, opts)
+/// A grown Stribeck fit (the slow part) also stops at `watch`'s time limit.
+pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &ValidSelectOptions, watch: &super::Watch) -> Result<Outcome<MotionModel>, ModelError> {
+    let domain = MotionDomain { deadline: watch.deadline(), ..MotionDomain::new(data)? };
+    super::run(&domain, model, opts, watch)
 }
 
 #[cfg(test)]
@@ -648,10 +657,28 @@ mod tests {
         let rms_um = |m: &MotionModel| crate::metrics::rms(&d.meas_mm, &m.predict_mm(d).expect("simulate")) * 1e3;
         let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.005 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
         let whole = identify(d, &start, &[MotionEffect::Stribeck]).expect("fit");
-        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck]).expect("fit");
+        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck], None).expect("fit");
         let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s, {} µm RMS (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s, rms_um(m));
         assert!(!near(&whole) && rms_um(&whole) > 2.0, "whole-record fit: {}", show(&whole));
         assert!(near(&grown) && rms_um(&grown) < 1.25, "grown fit: {}", show(&grown));
+    }
+
+    #[test]
+    fn a_passed_time_limit_ends_a_grown_fit_and_the_run_says_where() {
+        let config = hidden::HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 0, pairs: Vec::new(), ..hidden::HiddenConfig::small(3) };
+        let cases = hidden::generate(&config).expect("generate");
+        let case = cases.iter().find(|c| c.answer.id == "stribeck-m2-n1um-0").expect("case");
+        let mut start = MotionModel::base(case.data.axis);
+        start.effects.stribeck_n = 2.0;
+        let err = identify_grown(&case.data, &start, &[MotionEffect::Stribeck], Some(Instant::now())).expect_err("past deadline");
+        assert!(err.to_string().contains(&format!("time limit reached growing the Stribeck fit at {GROW_FIRST} of")), "{err}");
+        let stages = std::sync::Mutex::new(Vec::<String>::new());
+        let log = |s: &str| stages.lock().expect("log").push(s.to_string());
+        let out = discrepancy(case.data.clone(), None, &ValidSelectOptions::default(), &super::super::Watch::new(Some(&log), Some(0.0))).expect("run");
+        let stopped = out.report.stopped.expect("stopped");
+        assert_eq!(stopped.at, "fitting the base model");
+        assert!(out.report.effects.is_empty() && out.report.not_significant.is_empty());
+        assert_eq!(*stages.lock().expect("log"), ["fitting the base model"]);
     }
 
     #[test]

@@ -568,11 +568,12 @@ pub fn discrepancy(
     segments: Vec<Experiment>,
     model: Option<ThermalModel>,
     opts: &super::ValidSelectOptions,
+    watch: &super::Watch,
 ) -> Result<super::Outcome<ThermalModel>, ModelError> {
     if let Some(m) = &model {
         m.check()?;
     }
-    super::run(&ThermalData::new(segments)?, model, opts)
+    super::run(&ThermalData::new(segments)?, model, opts, watch)
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use crate::error::Result;
 use crate::spec::{Header, SpecFile};
 use crate::stage::{Stage, StageOutput};
 use crate::store::Hash;
-use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions};
+use fdmlab_models::discrepancy::{SelectOptions, ValidSelectOptions, Watch};
 use serde::{Deserialize, Serialize};
 
 /// The spec of a `discrepancy` experiment.
@@ -122,7 +122,7 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
         let bytes: Vec<Vec<u8>> = paths.iter().map(|f| input.file(f)).collect::<Result<_>>()?;
         let files: Vec<(&[u8], &str)> = bytes.iter().zip(&p.data).map(|(b, n)| (b.as_slice(), n.as_str())).collect();
         let model = if p.with_model { Some(input.artifact("model")?) } else { None };
-        let run = disc::run(p.domain, &files, model.as_deref().map(|b| (b, "model")), &p.read, &p.select)?;
+        let run = disc::run(p.domain, &files, model.as_deref().map(|b| (b, "model")), &p.read, &p.select, &Watch::default())?;
         for n in &run.notes {
             eprintln!("{n}");
         }
