@@ -30,7 +30,7 @@
 //!   documented physical ranges), `without` (the effect switched off, nothing
 //!   refitted) and `remove` (switched off, the rest re-identified);
 //! - optionally `fitted_parameters` (a refit that frees more than its columns),
-//!   `rivals` (nested effects refitted beside one whenever it contends) and
+//!   `rivals` (nested effects refitted beside one whenever it ranks first) and
 //!   `join` (an effect masked by a named one, refitted jointly with it).
 //!
 //! [`run`] does the rest, identically for every domain: residual, noise band
@@ -147,7 +147,7 @@ pub trait Domain {
     /// Named parameters of `effect` in `model` (units in the names).
     fn effect_parameters(&self, model: &Self::Model, effect: &str) -> BTreeMap<String, f64>;
     /// Effects nested with `effect` (one is a limit of the other) whose linearisations
-    /// can differ widely: refitted beside it whenever it contends, whatever their ERR.
+    /// can differ widely: refitted beside it whenever it ranks first in a round, whatever their ERR.
     fn rivals(&self, _effect: &str) -> &'static [&'static str] {
         &[]
     }
