@@ -417,6 +417,13 @@ pub fn bench(a: BenchArgs, ctx: &Ctx) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A workflow stage without its round number or counts (`round 2: refitting \`stribeck\`` →
+/// ``refitting `stribeck` ``; `gate: 2 named effect(s)` → `gate`), for timing by kind.
+fn stage_kind(stage: &str) -> String {
+    let s = stage.split_once(": ").filter(|(round, _)| round.starts_with("round ")).map_or(stage, |(_, rest)| rest);
+    ["ranking", "gate"].into_iter().find(|k| s.starts_with(k)).map_or_else(|| s.to_string(), str::to_string)
+}
+
 /// The motion workflow on every case of a hidden set (`HiddenConfig::small(seed)`),
 /// one case at a time (each fit uses every core), against the baseline of one
 /// simulation of the base model over the protocol (best of 20) on the same machine.
@@ -436,14 +443,30 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
     if let Some(b) = bar.get() {
         b.enable_steady_tick(std::time::Duration::from_secs(1));
     }
+    // Seconds per stage kind over the set, and per case (each stage lasts until the next starts).
+    let mut per_stage: BTreeMap<String, f64> = BTreeMap::new();
+    let mut case_stages: Vec<BTreeMap<String, f64>> = Vec::with_capacity(cases.len());
     let total = Instant::now();
     for c in &cases {
         if let Some(b) = bar.get() {
             b.set_message(c.answer.id.clone());
         }
+        let marks = std::sync::Mutex::new(Vec::<(String, Instant)>::new());
+        let mark = |stage: &str| marks.lock().unwrap_or_else(|e| e.into_inner()).push((stage_kind(stage), Instant::now()));
         let t = Instant::now();
-        motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default())?;
+        motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::new(Some(&mark), None))?;
+        let end = Instant::now();
         times.push((t.elapsed().as_secs_f64(), c.answer.id.clone()));
+        let marks = marks.into_inner().unwrap_or_else(|e| e.into_inner());
+        let mut stages = BTreeMap::new();
+        for (i, (kind, at)) in marks.iter().enumerate() {
+            let until = marks.get(i + 1).map_or(end, |m| m.1);
+            *stages.entry(kind.clone()).or_insert(0.0) += (until - *at).as_secs_f64();
+        }
+        for (k, v) in &stages {
+            *per_stage.entry(k.clone()).or_insert(0.0) += v;
+        }
+        case_stages.push(stages);
         if let Some(b) = bar.get() {
             b.inc(1);
         }
@@ -458,7 +481,8 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
         "domain": "motion", "seed": seed, "cases": cases.len(), "samples": first.data.t_s.len(),
         "simulation_s": unit, "total_s": total, "median_case_s": median, "slowest_case_s": slowest.0, "slowest_case": slowest.1,
         "total_in_simulations": total / unit, "slowest_in_simulations": slowest.0 / unit,
-        "cases_over_10_s": times.iter().filter(|t| t.0 > 10.0).map(|t| json!({"case": t.1, "seconds": t.0})).collect::<Vec<_>>(),
+        "cases_over_10_s": times.iter().zip(&case_stages).filter(|(t, _)| t.0 > 10.0).map(|(t, s)| json!({"case": t.1, "seconds": t.0, "stages_s": s})).collect::<Vec<_>>(),
+        "stages_s": per_stage,
         "threads": fdmlab_models::parallel::threads(),
     });
     ctx.emit(&value, || {
@@ -471,7 +495,7 @@ fn bench_motion(seed: u64, ctx: &Ctx) -> anyhow::Result<()> {
             unit * 1e3,
             total / unit,
             slowest.0 / unit
-        )
+        ) + &format!("time by stage over the set: {}\n", per_stage.iter().map(|(k, v)| format!("{k} {v:.1} s")).collect::<Vec<_>>().join(", "))
     });
     Ok(())
 }
