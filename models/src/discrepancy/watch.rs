@@ -11,14 +11,17 @@ use std::time::{Duration, Instant};
 #[derive(Clone, Copy, Default)]
 pub struct Watch<'a> {
     progress: Option<&'a (dyn Fn(&str) + Sync)>,
-    limit: Option<(Instant, f64)>,
+    /// The deadline (none when the limit is too far to represent) and the limit, s.
+    limit: Option<(Option<Instant>, f64)>,
 }
 
 impl<'a> Watch<'a> {
     /// A watch calling `progress` with each stage's description; with `limit_s`, the
-    /// search ends once that many seconds have passed from now.
+    /// search ends once that many seconds have passed from now (a negative or NaN limit
+    /// counts as 0, an infinite one as none).
     pub fn new(progress: Option<&'a (dyn Fn(&str) + Sync)>, limit_s: Option<f64>) -> Self {
-        Watch { progress, limit: limit_s.map(|s| (Instant::now() + Duration::from_secs_f64(s.max(0.0)), s)) }
+        let deadline = |s: f64| Duration::try_from_secs_f64(s.max(0.0)).ok().and_then(|d| Instant::now().checked_add(d));
+        Watch { progress, limit: limit_s.map(|s| (deadline(s), s)) }
     }
     /// Announce a stage.
     pub fn stage(&self, what: &str) {
@@ -28,7 +31,7 @@ impl<'a> Watch<'a> {
     }
     /// The instant after which no further effect is tried.
     pub fn deadline(&self) -> Option<Instant> {
-        self.limit.map(|l| l.0)
+        self.limit.and_then(|l| l.0)
     }
     /// Whether the limit has passed.
     pub fn expired(&self) -> bool {
@@ -55,4 +58,20 @@ pub struct Stopped {
 /// Whether `deadline` has passed: the check a domain's own long fits make between steps.
 pub fn past(deadline: Option<Instant>) -> bool {
     deadline.is_some_and(|d| Instant::now() >= d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn odd_limits_neither_panic_nor_stop_wrongly() {
+        assert!(Watch::new(None, Some(0.0)).expired());
+        assert!(Watch::new(None, Some(-3.0)).expired());
+        assert!(Watch::new(None, Some(f64::NAN)).expired());
+        assert!(!Watch::new(None, Some(f64::INFINITY)).expired());
+        assert!(!Watch::new(None, Some(1e300)).expired());
+        assert!(!Watch::new(None, Some(3600.0)).expired());
+        assert!(!Watch::default().expired());
+    }
 }
