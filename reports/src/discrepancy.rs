@@ -27,10 +27,11 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
     let total_s = o.time_s.last().copied().unwrap_or(0.0) - o.time_s.first().copied().unwrap_or(0.0);
     let in_windows: f64 = r.windows.iter().map(|w| w.end_s - w.start_s).sum();
     doc.paragraph(format!(
-        "{} samples over {} s. Noise estimated from the data: σ = {} {unit}. The starting model's residual leaves the noise band in {} window(s) covering {} s ({} % of the log).",
+        "{} samples over {} s. Noise {}: σ = {} {unit}. The starting model's residual leaves the noise band in {} window(s) covering {} s ({} % of the log).",
         o.measured.len(),
         num(total_s, 4),
-        num(o.noise_sigma, 3),
+        if r.noise_given { "as given" } else { "estimated from the data" },
+        num(r.noise_sigma, 3),
         r.windows.len(),
         num(in_windows, 4),
         num(if total_s > 0.0 { 100.0 * in_windows / total_s } else { 0.0 }, 3)
@@ -173,6 +174,8 @@ mod tests {
                     gate: None,
                 }],
                 ambiguous: vec![],
+                noise_sigma: 0.3,
+                noise_given: true,
                 windows: vec![Window { start_s: 10.0, end_s: 30.0 }],
                 before: m(90.0, 2.0),
                 after: m(99.0, 0.5),
@@ -182,7 +185,6 @@ mod tests {
             },
             ranking: vec![Ranked { name: "fan_cooling".into(), err: 0.9, p_value: 1e-20, delta_bic: -500.0, coefficients: vec![0.001] }],
             unit: "°C".into(),
-            noise_sigma: 0.3,
             time_s: (0..101).map(f64::from).collect(),
             measured: vec![0.0; 101],
             residual_before: vec![0.0; 101],
@@ -196,6 +198,7 @@ mod tests {
         let md = report("thermal", "log.csv", &o).to_markdown();
         // 20 s of windows in a 100 s log; RMS 2 → 0.5 is 75 % lower.
         assert!(md.contains("covering 20.00 s (20.0 % of the log)"), "{md}");
+        assert!(md.contains("Noise as given: σ = 0.300 °C"), "{md}");
         assert!(md.contains("2.000 → 0.5000 °C (75.0 % lower)"), "{md}");
         assert!(md.contains("`fan_cooling`"));
         // 0.5 °C over σ = 0.3 °C; one window 40–55 s.

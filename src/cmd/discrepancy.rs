@@ -58,6 +58,11 @@ struct RunArgs {
     /// Correlation above which two effects are reported ambiguous.
     #[arg(long, default_value_t = SelectOptions::default().collinearity)]
     collinearity: f64,
+    /// The measurement noise σ in the data's unit (°C, mm, mm³/s) when known from the
+    /// sensor's spec or a static test (default: estimated from the data, which reads
+    /// motion at the sample rate as noise).
+    #[arg(long = "noise-sigma", value_name = "SIGMA")]
+    noise_sigma: Option<f64>,
     /// Log format (default: by extension/content).
     #[arg(long, value_enum)]
     format: Option<LogFormatArg>,
@@ -150,7 +155,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     if a.data.is_empty() {
         return Err(bad("--data FILE is required"));
     }
-    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity }.check().map_err(super::flag_error)?;
+    let opts = SelectOptions { max_effects: a.max_effects, alpha: a.alpha, collinearity: a.collinearity, noise_sigma: a.noise_sigma }
+        .check()
+        .map_err(super::flag_error)?;
     if let Some(t) = a.time_limit.filter(|t| !(t.is_finite() && *t >= 0.0)) {
         return Err(bad(format!("--time-limit: invalid value {t}: must be a finite number of seconds ≥ 0")));
     }
@@ -214,7 +221,13 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
     }
     let value = serde_json::to_value(r)?;
     ctx.emit(&value, || {
-        let mut s = format!("{} on {file}: {} window(s) where the model leaves the noise band\n", domain.name(), r.windows.len());
+        let mut s = format!(
+            "{} on {file}: {} window(s) where the model leaves the noise band (σ {:.3e}, {})\n",
+            domain.name(),
+            r.windows.len(),
+            r.noise_sigma,
+            if r.noise_given { "given" } else { "estimated" }
+        );
         if r.effects.is_empty() {
             s.push_str("no significant missing effect\n");
         }

@@ -122,7 +122,7 @@ fn the_twin_grid_shows_fan_and_head_height_missing_from_the_heater_only_model() 
     }
     assert!(v["after"]["rms"].as_f64().expect("rms") < 0.5 * v["before"]["rms"].as_f64().expect("rms"), "{v}");
     let keys: Vec<&str> = v.as_object().expect("object").keys().map(String::as_str).collect();
-    assert_eq!(keys, ["after", "ambiguous", "before", "effects", "not_significant", "unexplained", "windows"]);
+    assert_eq!(keys, ["after", "ambiguous", "before", "effects", "noise_given", "noise_sigma", "not_significant", "unexplained", "windows"]);
     let md = std::fs::read_to_string(sb.path().join("rep/report.md")).expect("report");
     assert!(md.contains("`fan_cooling`") && sb.path().join("rep/plot-1.svg").is_file());
 }
@@ -288,5 +288,11 @@ fn selection_limits_are_one_table_for_the_cli_and_the_spec() {
     let err = stderr(&out);
     // Located at the key's line (line 14 of the bundled spec) and naming it.
     assert!(err.contains("a.toml:14") && err.contains("discrepancy.alpha") && err.contains("(0, 0.5)"), "{err}");
+    // A given noise σ must be a σ: the spec key named, as the CLI flag is
+    // (tests/it/discrepancy_domains.rs).
+    sb.write("b.toml", &spec.replace("alpha = 0.01", "alpha = 0.01\nnoise_sigma = 0.0"));
+    let out = sb.run(&["run", "b.toml"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("discrepancy.noise_sigma"), "{}", stderr(&out));
     assert!(!sb.store().join("runs").exists(), "nothing written");
 }

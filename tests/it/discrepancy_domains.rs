@@ -122,10 +122,10 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 2] = [7511, 7512];
+const UNTOUCHED_MOTION_SEEDS: [u64; 4] = [7511, 7512, 7513, 7514];
 
 #[test]
-#[ignore = "fails the criteria on both seeds (3 of 32 and 3 of 30 wrong: Stribeck + belt-compliance pairs; issue #27 open); ~5 min for both in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "fails the criteria on 7511, 7512 and 7513 (3 of 32, 3 of 30, 3 of 31 wrong, mostly Stribeck + belt-compliance pairs; 7514 passes, 1 of 32; issue #27 open); ~9 min for the four in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }
@@ -205,4 +205,36 @@ fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() 
     // for the data made at half the workflow's step.
     let (before, after) = rms_before_after(&v);
     assert!(after < 1.25e-3 && after < 0.5 * before, "rms {before} -> {after} mm");
+}
+
+/// A sensor's σ given with `--noise-sigma` is the noise band's scale (the estimate
+/// from an axis record also reads the belt's ringing at the sample rate;
+/// docs/discrepancy-domains.md). Effect-free case of development seed 3.
+#[test]
+fn a_given_noise_sigma_sets_the_noise_band() {
+    let config = mhidden::HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 1, pairs: Vec::new(), replicates: 0, ..mhidden::HiddenConfig::small(3) };
+    let case = mhidden::generate(&config).expect("generate").into_iter().find(|c| c.answer.effects.is_empty()).expect("effect-free case");
+    let sb = crate::common::Sandbox::new();
+    sb.write("axis.csv", &fdmlab_datasets::discrepancy::motion::to_csv(&case.data));
+    let run = |sigma: f64| sb.json(&["discrepancy", "--domain", "motion", "--data", "axis.csv", "--noise-sigma", &sigma.to_string()]);
+    // The generator's laser: 1 µm Gaussian σ read in 1 µm steps, √(σ² + q²/12) in all.
+    let sensor = (case.answer.noise_sd_mm.powi(2) + 1e-6 / 12.0).sqrt();
+    let right = run(sensor);
+    assert_eq!((right["noise_sigma"].as_f64(), right["noise_given"].as_bool()), (Some(sensor), Some(true)), "{right}");
+    assert_eq!(named(&right), Vec::<&str>::new(), "{right}");
+    // Nothing is missing: the base fit leaves the sensor's noise (RMS of 411 samples
+    // within ±15 %, the 1 µm steps included), inside the band.
+    let after = right["after"]["rms"].as_f64().expect("rms");
+    assert!((after / sensor - 1.0).abs() < 0.15, "rms {after} vs σ {sensor}");
+    // Told a σ ten times smaller, the same residual leaves the band and is reported
+    // unexplained at ten times the noise; the names are not the band's business.
+    let tight = run(sensor / 10.0);
+    assert_eq!(named(&tight), Vec::<&str>::new(), "{tight}");
+    let ratio = tight["unexplained"]["rms_to_noise"].as_f64().unwrap_or(0.0);
+    assert!((ratio / (10.0 * after / sensor) - 1.0).abs() < 1e-9, "{tight}");
+    for bad in ["0", "-1e-3", "inf", "nan"] {
+        let out = sb.run(&["discrepancy", "--domain", "motion", "--data", "axis.csv", &format!("--noise-sigma={bad}")]);
+        assert_eq!(out.status.code(), Some(2), "{}", crate::common::stderr(&out));
+        assert!(crate::common::stderr(&out).contains("--noise-sigma"), "{}", crate::common::stderr(&out));
+    }
 }

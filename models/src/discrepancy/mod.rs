@@ -243,6 +243,13 @@ pub struct Report {
     pub effects: Vec<Effect>,
     /// Groups of effects the data cannot tell apart.
     pub ambiguous: Vec<Vec<String>>,
+    /// The noise band's σ, data unit: the user's (`noise_given`) or estimated from the
+    /// data ([`stats::noise_sigma`]).
+    #[serde(default, with = "nonfinite::scalar")]
+    pub noise_sigma: f64,
+    /// Whether `noise_sigma` was given ([`SelectOptions::noise_sigma`]) rather than estimated.
+    #[serde(default)]
+    pub noise_given: bool,
     /// Where the residual of the starting model leaves the noise band.
     pub windows: Vec<Window>,
     /// The starting model (given or base).
@@ -272,8 +279,6 @@ pub struct Outcome<M> {
     pub ranking: Vec<Ranked>,
     /// Unit of the output.
     pub unit: String,
-    /// Noise standard deviation estimated from the data.
-    pub noise_sigma: f64,
     /// Sample times, s.
     #[serde(with = "nonfinite::vec")]
     pub time_s: Vec<f64>,
@@ -352,7 +357,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         return Err(ModelError::Numerical("the starting model's simulation is not finite on these data".into()));
     }
     let r0 = residual(&y, &sim0);
-    let sigma = stats::noise_sigma(&y);
+    let sigma = opts.noise_sigma().unwrap_or_else(|| stats::noise_sigma(&y));
     let inputs = domain.inputs();
 
     let mut current = start.clone();
@@ -517,6 +522,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     let report = Report {
         effects,
         ambiguous,
+        noise_sigma: sigma,
+        noise_given: opts.noise_sigma().is_some(),
         windows: stats::windows(&r0, sigma, &time_s),
         before: metrics(&y, &sim0),
         after: metrics(&y, &sim1),
@@ -527,7 +534,6 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     Ok(Outcome {
         ranking: ranking.unwrap_or_default(),
         unit: domain.unit().to_string(),
-        noise_sigma: sigma,
         windows_after,
         cross_before: cross(&inputs, &r0),
         cross_after: cross(&inputs, &r_cur),

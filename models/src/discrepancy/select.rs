@@ -53,6 +53,7 @@ pub const MIN_COLLINEARITY: f64 = 0.5;
 /// | `max_effects` | 3 | 1–7 ([`MAX_EFFECTS`]) |
 /// | `alpha` | 0.01 | (0, 0.5) ([`MAX_ALPHA`]) |
 /// | `collinearity` | 0.98 | (0.5, 1] ([`MIN_COLLINEARITY`]) |
+/// | `noise_sigma` | estimated from the data | > 0, finite (data unit) |
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SelectOptions {
@@ -63,11 +64,17 @@ pub struct SelectOptions {
     /// |correlation| of base-orthogonalised columns above which two effects
     /// cannot be told apart.
     pub collinearity: f64,
+    /// The measurement noise σ in the data's unit when it is known (a sensor's spec, a
+    /// static test): the scale of the noise band. `None`: estimated from the data
+    /// ([`super::stats::noise_sigma`]), which reads a signal with content at the
+    /// sample rate as noise (2–5× the sensor's σ on the motion hidden set).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_sigma: Option<f64>,
 }
 
 impl Default for SelectOptions {
     fn default() -> Self {
-        SelectOptions { max_effects: 3, alpha: 0.01, collinearity: 0.98 }
+        SelectOptions { max_effects: 3, alpha: 0.01, collinearity: 0.98, noise_sigma: None }
     }
 }
 
@@ -82,6 +89,9 @@ impl SelectOptions {
         }
         if !(self.collinearity > MIN_COLLINEARITY && self.collinearity <= 1.0) {
             return Err(ModelError::invalid("collinearity", self.collinearity, &format!("must be within ({MIN_COLLINEARITY}, 1]")));
+        }
+        if let Some(s) = self.noise_sigma.filter(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(ModelError::invalid("noise_sigma", s, "must be a finite σ > 0 in the data's unit"));
         }
         Ok(ValidSelectOptions(self))
     }
@@ -122,6 +132,10 @@ impl ValidSelectOptions {
     }
     pub fn collinearity(&self) -> f64 {
         self.0.collinearity
+    }
+    /// The noise σ given by the user, if any.
+    pub fn noise_sigma(&self) -> Option<f64> {
+        self.0.noise_sigma
     }
     /// The same options choosing one effect per call (1 is within every limit).
     pub(crate) fn one_effect(&self) -> ValidSelectOptions {
@@ -376,12 +390,15 @@ mod tests {
     #[test]
     fn the_limits_table_states_the_constants_and_check_enforces_them() {
         let src = include_str!("select.rs");
-        for row in [format!("| 1–{MAX_EFFECTS} ("), format!("| (0, {MAX_ALPHA}) ("), format!("| ({MIN_COLLINEARITY}, 1] (")] {
+        for row in
+            [format!("| 1–{MAX_EFFECTS} ("), format!("| (0, {MAX_ALPHA}) ("), format!("| ({MIN_COLLINEARITY}, 1] ("), "| > 0, finite (data unit) |".into()]
+        {
             assert!(src.contains(&row), "{row}");
         }
         let ok = |o: SelectOptions| o.check().is_ok();
         let d = SelectOptions::default();
         assert!(ok(d) && ok(SelectOptions { max_effects: MAX_EFFECTS, ..d }) && ok(SelectOptions { collinearity: 1.0, ..d }));
+        assert!(ok(SelectOptions { noise_sigma: Some(1e-3), ..d }));
         for bad in [
             SelectOptions { max_effects: 0, ..d },
             SelectOptions { max_effects: MAX_EFFECTS + 1, ..d },
@@ -390,6 +407,10 @@ mod tests {
             SelectOptions { alpha: f64::NAN, ..d },
             SelectOptions { collinearity: MIN_COLLINEARITY, ..d },
             SelectOptions { collinearity: 1.01, ..d },
+            SelectOptions { noise_sigma: Some(0.0), ..d },
+            SelectOptions { noise_sigma: Some(-1.0), ..d },
+            SelectOptions { noise_sigma: Some(f64::INFINITY), ..d },
+            SelectOptions { noise_sigma: Some(f64::NAN), ..d },
         ] {
             assert!(!ok(bad), "{bad:?}");
         }
@@ -397,6 +418,10 @@ mod tests {
         let json = serde_json::to_string(&ValidSelectOptions::default()).expect("json");
         assert_eq!(json, r#"{"max_effects":3,"alpha":0.01,"collinearity":0.98}"#);
         assert!(serde_json::from_str::<ValidSelectOptions>(&json.replace("0.01", "0.7")).is_err());
+        // A given noise σ is kept; absent, the form (and so every cached run's key) is unchanged.
+        let given = serde_json::to_string(&SelectOptions { noise_sigma: Some(0.002), ..d }.check().expect("valid")).expect("json");
+        assert_eq!(given, r#"{"max_effects":3,"alpha":0.01,"collinearity":0.98,"noise_sigma":0.002}"#);
+        assert!(serde_json::from_str::<ValidSelectOptions>(&given.replace("0.002", "-1")).is_err());
     }
 
     fn data(n: usize, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {

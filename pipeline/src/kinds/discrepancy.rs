@@ -44,6 +44,10 @@ pub struct Section {
     /// Correlation above which two effects are reported ambiguous (default 0.98).
     #[serde(default = "default_collinearity")]
     pub collinearity: f64,
+    /// The measurement noise σ in the data's unit, when known (a sensor's spec; default:
+    /// estimated from the data).
+    #[serde(default)]
+    pub noise_sigma: Option<f64>,
 }
 
 /// One file or a list.
@@ -106,8 +110,9 @@ pub fn plan(spec: &SpecFile) -> Result<Vec<Stage>> {
     let s: DiscrepancySpec = spec.parse()?;
     let d = &s.discrepancy;
     let domain = d.domain;
-    let select =
-        SelectOptions { max_effects: d.max_effects, alpha: d.alpha, collinearity: d.collinearity }.check().map_err(|e| spec.bad_param("discrepancy", e))?;
+    let select = SelectOptions { max_effects: d.max_effects, alpha: d.alpha, collinearity: d.collinearity, noise_sigma: d.noise_sigma }
+        .check()
+        .map_err(|e| spec.bad_param("discrepancy", e))?;
     if let Some(f) = &s.read.format {
         fdmlab_datasets::thermal::LogFormat::parse(f).map_err(|e| spec.bad_value("read.format", e.to_string()))?;
     }
