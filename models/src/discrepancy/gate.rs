@@ -18,8 +18,8 @@
 //!    seeds) the wrongly named effects — a heater saturation standing for the loss's
 //!    curvature, a sensor lag or fan loss for a drifting ambient — contributed
 //!    0.6–1.2× the final residual's RMS, the right ones 3–24×; against σ̂ (3× smaller
-//!    there) all passed. The noise σ estimated from the data ([`Gate::noise_sigma`],
-//!    second differences) is reported beside it; it is no scale for the test, as it
+//!    there) all passed. The noise band's σ ([`Gate::noise_sigma`]: the user's, or
+//!    estimated from second differences) is reported beside it; it is no scale for the test, as it
 //!    also sees a signal with content at the sampling rate (on the motion hidden set
 //!    2.4–18× the true σ).
 //! 2. **Confidence.** The `1 − alpha` confidence region of its magnitude
@@ -96,7 +96,7 @@ pub struct Gate {
     /// domain declines the refit).
     #[serde(with = "nonfinite::scalar", default)]
     pub contribution_refit_rms: f64,
-    /// Noise σ estimated from the data (second differences), for reference.
+    /// The noise band's σ (the user's, or estimated from the data), for reference.
     #[serde(with = "nonfinite::scalar")]
     pub noise_sigma: f64,
     /// RMS of the final model's residual: the size test's scale.
