@@ -223,7 +223,7 @@ fn a_given_noise_sigma_sets_the_noise_band() {
     assert_eq!((right["noise_sigma"].as_f64(), right["noise_given"].as_bool()), (Some(sensor), Some(true)), "{right}");
     assert_eq!(named(&right), Vec::<&str>::new(), "{right}");
     // Nothing is missing: the base fit leaves the sensor's noise (RMS of 411 samples
-    // within ±15 %, the 1 µm steps included), inside the band.
+    // within ±15 %, the 1 µm steps included).
     let after = right["after"]["rms"].as_f64().expect("rms");
     assert!((after / sensor - 1.0).abs() < 0.15, "rms {after} vs σ {sensor}");
     // Told a σ ten times smaller, the same residual leaves the band and is reported
