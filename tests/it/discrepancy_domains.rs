@@ -122,10 +122,10 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 4] = [7511, 7512, 7513, 7514];
+const UNTOUCHED_MOTION_SEEDS: [u64; 6] = [7511, 7512, 7513, 7514, 7515, 7516];
 
 #[test]
-#[ignore = "fails the criteria on 7511, 7512 and 7513 (3 of 32, 3 of 30, 3 of 31 wrong, mostly Stribeck + belt-compliance pairs; 7514 passes, 1 of 32; issue #27 open); ~9 min for the four in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "fails the criteria on every seed but 7514 (190 graded, 13 wrong over the six, 9 of them Stribeck + belt-compliance pairs; issue #27 open); ~19 min for the six in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }
@@ -205,6 +205,34 @@ fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() 
     // for the data made at half the workflow's step.
     let (before, after) = rms_before_after(&v);
     assert!(after < 1.25e-3 && after < 0.5 * before, "rms {before} -> {after} mm");
+}
+
+/// A Stribeck excess beside a soft belt, the 3 µm case of the development seed's
+/// default hand-out (`discrepancy hidden --domain motion --seed 3`), run as a user
+/// would: Coulomb friction is named first (the Stribeck refit without the belt is a
+/// compromise), the belt compliance is joined, and the Stribeck rival refitted afresh
+/// beside it replaces the Coulomb level (`swapped_for_rival`). ~25 s in a release
+/// test binary.
+#[test]
+fn a_rival_refitted_beside_the_joined_belt_names_the_stribeck_excess() {
+    let sb = crate::common::Sandbox::new();
+    sb.ok(&["discrepancy", "hidden", "--domain", "motion", "--seed", "3", "--out", "h"]);
+    let answers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/answers.json")).expect("answers")).expect("json");
+    let case = answers["cases"].as_array().expect("cases").iter().find(|c| c["answer"]["id"] == "stribeck+belt_compliance-n3um-0").expect("case");
+    let v = sb.json(&["discrepancy", "--domain", "motion", "--data", &format!("h/{}", case["file"].as_str().expect("file"))]);
+    assert_eq!(named(&v), ["stribeck", "belt_compliance"], "{v}");
+    assert_eq!(v["effects"][0]["evidence"]["swapped_for_rival"].as_f64(), Some(1.0), "{v}");
+    let rel = |i: usize, k: &str| {
+        let truth = case["answer"]["effects"].as_array().expect("truth").iter().find(|e| e["name"] == v["effects"][i]["name"]).expect("named in truth");
+        v["effects"][i]["parameters"][k].as_f64().expect(k) / truth["parameters"][k].as_f64().expect(k) - 1.0
+    };
+    // Within the single-effect test's bounds (level 0.5 %, velocity 5 %); the compliance
+    // within 1 % (its lone fit on the base model is 2–4 % off; the joint fit should do better).
+    assert!(rel(0, "stribeck_n").abs() < 0.005 && rel(0, "stribeck_v_m_s").abs() < 0.05, "{v}");
+    assert!(rel(1, "belt_compliance_m_per_n").abs() < 0.01, "{v}");
+    // The truth's residual: 3 µm noise with 1 µm resolution (3.01 µm), plus ≤ 0.2 µm.
+    let (before, after) = rms_before_after(&v);
+    assert!(after < 3.25e-3 && after < 0.5 * before, "rms {before} -> {after} mm");
 }
 
 /// A sensor's σ given with `--noise-sigma` is the noise band's scale (the estimate

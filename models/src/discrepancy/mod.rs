@@ -41,8 +41,11 @@
 //! first-order-collinear groups by the nonlinear refit when the data can tell
 //! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
 //! else they are reported `ambiguous`; when no further effect passes but the
-//! residual still leaves the noise band, one joint refit of a masked effect
-//! (`join`); then every named effect must earn its name at the final model
+//! residual still leaves the noise band (or a named effect is too small beside
+//! it for the gate), one joint refit of a masked effect (`join`), after which
+//! every named effect with rivals is refitted afresh beside the joined one, itself
+//! and its rivals, the best kept (`refit_beside_join`); then every named effect
+//! must earn its name at the final model
 //! ([`gate`]: contribution against the noise, confidence region excluding zero,
 //! physical range) or is refitted out and listed `not_significant`; finally
 //! everything is recomputed on the augmented model and a residual still outside
@@ -450,7 +453,19 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
     // beside them already) is refitted alone on the starting model and joined to the
     // named ones; the best join is kept if its BIC falls.
-    let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && !stats::windows(&r_cur, sigma, &time_s).is_empty();
+    // Due too where the band shows nothing but a named effect, switched off, moves the
+    // simulation by less than the gate's size margin times the residual (an upper bound
+    // of the gate's refitted contribution): a band whose σ̂ reads the unexplained
+    // effects' own fast content as noise (motion's stick–slip with a soft belt) hides
+    // the disagreement the named effect leaves.
+    let too_small = || {
+        let sim = domain.simulate(&current);
+        effects.iter().any(|e| {
+            let off = domain.simulate(&domain.without(&current, &e.name));
+            stats::rms(&residual(&sim, &off)) < gate::CONTRIBUTION_MARGIN * stats::rms(&r_cur)
+        })
+    };
+    let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || too_small());
     if join_due && stopped.is_none() {
         stopped = watch.stopped(&at.borrow(), &["joint refit", "twin check"]);
     }
@@ -475,6 +490,11 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });
             current = m;
             r_cur = r1;
+            let ranked = ranking.as_deref().unwrap_or_default();
+            refit_beside_join(domain, &y, ranked, &mut effects, &mut current, &mut r_cur, &|name: &str| {
+                announce(format!("refitting `{name}` beside the joined effect"));
+                !watch.expired()
+            });
         }
     }
     if stopped.is_none() && !effects.is_empty() {
@@ -588,6 +608,58 @@ fn twin_check<D: Domain>(domain: &D, y: &[f64], effects: &mut Vec<Effect>, ambig
         }
         effects[i].evidence.insert("delta_bic_vs_twin".into(), gap);
         i += 1;
+    }
+}
+
+/// After a join, every named effect that has rivals ([`Domain::rivals`]) was chosen at
+/// its round without the effect the join found, against rivals refitted without it too.
+/// It and each rival not named are refitted afresh in its place beside the rest (from
+/// their first-round ranking), and the best replaces it where it fits better: the same
+/// effect whenever its SSE falls; a rival only when the BIC (its own parameter count)
+/// falls by more than [`DECISIVE_BIC`] (`evidence.swapped_for_rival` = 1). `go` announces
+/// each refit and says whether time is left for it.
+fn refit_beside_join<D: Domain>(
+    domain: &D,
+    y: &[f64],
+    ranking: &[Ranked],
+    effects: &mut [Effect],
+    current: &mut D::Model,
+    r_cur: &mut Vec<f64>,
+    go: &dyn Fn(&str) -> bool,
+) {
+    for i in 0..effects.len() {
+        let name = effects[i].name.clone();
+        let rivals = domain.rivals(&name);
+        if rivals.is_empty() {
+            continue;
+        }
+        let width = |n: &str| ranking.iter().find(|r| r.name == n).map_or(1, |r| domain.fitted_parameters(n, r.coefficients.len()));
+        let others: Vec<&str> = effects.iter().map(|e| e.name.as_str()).filter(|n| *n != name).collect();
+        let mut best: Option<(String, D::Model, Vec<f64>, f64)> = None;
+        for r in ranking.iter().filter(|r| r.name == name || (rivals.contains(&r.name.as_str()) && !others.contains(&r.name.as_str()))) {
+            if !go(&r.name) {
+                return;
+            }
+            let Some((m, r1)) = domain.augment(&domain.without(current, &name), r).ok().and_then(|m| simulated_residual(domain, y, &m).map(|r1| (m, r1)))
+            else {
+                continue;
+            };
+            let extra = width(&r.name) as f64 - width(&name) as f64;
+            let d = delta_bic(r_cur, &r1, 0) + extra * stats::effective_samples(&r1).min(r1.len() as f64).ln();
+            let bar = if r.name == name { 0.0 } else { -DECISIVE_BIC };
+            if d < bar && best.as_ref().is_none_or(|b| d < b.3) {
+                best = Some((r.name.clone(), m, r1, d));
+            }
+        }
+        if let Some((n, m, r1, d)) = best {
+            if n != name {
+                effects[i].evidence.insert("swapped_for_rival".into(), 1.0);
+                effects[i].name = n;
+            }
+            effects[i].evidence.insert("delta_bic_refit_beside_join".into(), d);
+            *current = m;
+            *r_cur = r1;
+        }
     }
 }
 
