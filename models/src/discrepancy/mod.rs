@@ -41,8 +41,8 @@
 //! first-order-collinear groups by the nonlinear refit when the data can tell
 //! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
 //! else they are reported `ambiguous`; when no further effect passes but the
-//! residual still leaves the noise band (or a named effect is too small beside
-//! it for the gate), one joint refit of a masked effect (`join`), after which
+//! residual still leaves the noise band (or a named effect with rivals is too
+//! small beside it for the gate), one joint refit of a masked effect (`join`), after which
 //! every named effect with rivals is refitted afresh beside the joined one, itself
 //! and its rivals, the best kept (`refit_beside_join`); then every named effect
 //! must earn its name at the final model
@@ -453,14 +453,15 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
     // beside them already) is refitted alone on the starting model and joined to the
     // named ones; the best join is kept if its BIC falls.
-    // Due too where the band shows nothing but a named effect, switched off, moves the
-    // simulation by less than the gate's size margin times the residual (an upper bound
-    // of the gate's refitted contribution): a band whose σ̂ reads the unexplained
+    // Due too where the band shows nothing but a named effect that has rivals (chosen
+    // against them without the masked effect, maybe a compromise), switched off, moves
+    // the simulation by less than the gate's size margin times the residual (an upper
+    // bound of the gate's refitted contribution): a band whose σ̂ reads the unexplained
     // effects' own fast content as noise (motion's stick–slip with a soft belt) hides
     // the disagreement the named effect leaves.
     let too_small = || {
         let sim = domain.simulate(&current);
-        effects.iter().any(|e| {
+        effects.iter().filter(|e| !domain.rivals(&e.name).is_empty()).any(|e| {
             let off = domain.simulate(&domain.without(&current, &e.name));
             stats::rms(&residual(&sim, &off)) < gate::CONTRIBUTION_MARGIN * stats::rms(&r_cur)
         })
