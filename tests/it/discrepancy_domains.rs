@@ -122,10 +122,10 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 6] = [7511, 7512, 7513, 7514, 7515, 7516];
+const UNTOUCHED_MOTION_SEEDS: [u64; 8] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518];
 
 #[test]
-#[ignore = "fails the criteria on every seed but 7514 (190 graded, 13 wrong over the six, 9 of them Stribeck + belt-compliance pairs; issue #27 open); ~19 min for the six in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "fails the criteria on every seed but 7514 and 7518 (251 graded, 15 wrong over the eight, 10 of them Stribeck + belt-compliance pairs; issue #27 open); ~21 min for the eight in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }

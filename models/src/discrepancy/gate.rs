@@ -191,7 +191,7 @@ fn inverse_normal(cols: &[Vec<f64>]) -> DMatrix<f64> {
 /// (noise σ `sigma` estimated from the data, reported), intervals at level `1 − alpha`.
 pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64], sigma: f64, alpha: f64) -> Vec<Gate> {
     let sim = domain.simulate(model);
-    let r: Vec<f64> = y.iter().zip(&sim).map(|(a, b)| a - b).collect();
+    let r = super::residual(y, &sim);
     let n = r.len() as f64;
     let residual_rms = stats::rms(&r);
     let params: Vec<Vec<EffectParameter>> = named.iter().map(|e| domain.effect_columns(model, e)).collect();
@@ -209,11 +209,12 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
         .iter()
         .zip(&params)
         .map(|(name, ps)| {
-            let without = domain.simulate(&domain.without(model, name));
-            let gap = |other: &[f64]| stats::rms(&sim.iter().zip(other).map(|(a, b)| a - b).collect::<Vec<_>>());
-            let contribution_rms = gap(&without);
-            let contribution_refit_rms =
-                if domain.refit_contribution() { domain.remove(model, name).map_or(contribution_rms, |m| gap(&domain.simulate(&m))) } else { contribution_rms };
+            let contribution_rms = switched_off_rms(domain, model, &sim, name);
+            let contribution_refit_rms = if domain.refit_contribution() {
+                domain.remove(model, name).map_or(contribution_rms, |m| stats::rms(&super::residual(&sim, &domain.simulate(&m))))
+            } else {
+                contribution_rms
+            };
             let idx: Vec<usize> = (at..at + ps.len()).collect();
             at += ps.len();
             let parameters: Vec<ParameterCheck> = ps
@@ -257,6 +258,12 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
             }
         })
         .collect()
+}
+
+/// RMS of what `name` adds to `model`'s simulation `sim`: `sim` minus the simulation
+/// with the effect switched off (nothing refitted).
+pub fn switched_off_rms<D: Domain>(domain: &D, model: &D::Model, sim: &[f64], name: &str) -> f64 {
+    stats::rms(&super::residual(sim, &domain.simulate(&domain.without(model, name))))
 }
 
 /// Forward-difference sensitivity column of a parameter at `value`:

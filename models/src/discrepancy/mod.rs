@@ -40,11 +40,13 @@
 //! re-identification, not only in the linearisation), resolution of
 //! first-order-collinear groups by the nonlinear refit when the data can tell
 //! them apart (BIC difference > 10, "very strong", Kass & Raftery 1995, §3.2),
-//! else they are reported `ambiguous`; when no further effect passes but the
+//! else they are reported `ambiguous`; a named effect with rivals chosen before a
+//! later effect was named is refitted afresh beside it, itself and its rivals, the
+//! best kept (`refit_rivals_beside`); when no further effect passes but the
 //! residual still leaves the noise band (or a named effect with rivals is too
 //! small beside it for the gate), one joint refit of a masked effect (`join`), after which
-//! every named effect with rivals is refitted afresh beside the joined one, itself
-//! and its rivals, the best kept (`refit_beside_join`); then every named effect
+//! every named effect with rivals is refitted afresh beside the joined one likewise;
+//! then every named effect
 //! must earn its name at the final model
 //! ([`gate`]: contribution against the noise, confidence region excluding zero,
 //! physical range) or is refitted out and listed `not_significant`; finally
@@ -315,8 +317,9 @@ fn metrics(y: &[f64], y_hat: &[f64]) -> Metrics {
     Metrics { fit_percent: stats::fit_percent(y, y_hat), rms: stats::rms(&r), whiteness_p: stats::ljung_box(&r, 0).p_value }
 }
 
-/// `n_eff·ln(SSE₁/SSE₀) + k·ln n_eff` with `n_eff` from the new residual.
-fn delta_bic(r0: &[f64], r1: &[f64], k: usize) -> f64 {
+/// `n_eff·ln(SSE₁/SSE₀) + k·ln n_eff` with `n_eff` from the new residual (`k` the
+/// parameters added; negative where the new model has fewer).
+fn delta_bic(r0: &[f64], r1: &[f64], k: isize) -> f64 {
     let n_eff = stats::effective_samples(r1).min(r1.len() as f64);
     let (s0, s1) = (r0.iter().map(|v| v * v).sum::<f64>(), r1.iter().map(|v| v * v).sum::<f64>());
     n_eff * (s1.max(f64::MIN_POSITIVE) / s0.max(f64::MIN_POSITIVE)).ln() + k as f64 * n_eff.ln()
@@ -448,6 +451,16 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             break;
         }
     }
+    // A named effect with rivals was chosen against them without the effects named
+    // after it: each is refitted afresh beside them (as after a join, below).
+    if effects.len() > 1 && stopped.is_none() {
+        let ranked = ranking.as_deref().unwrap_or_default();
+        let earlier = effects.len() - 1;
+        refit_rivals_beside(domain, &y, ranked, &mut effects, earlier, &mut current, &mut r_cur, &|name: &str| {
+            announce(format!("refitting `{name}` beside the effects named after it"));
+            !watch.expired()
+        });
+    }
     // Effects named, yet the residual still leaves the noise band and no further
     // effect passed: one may be masked by a named one (its column around the named
     // one's fit is flat). Each remaining candidate but the named ones' rivals (refitted
@@ -461,10 +474,10 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // the disagreement the named effect leaves.
     let too_small = || {
         let sim = domain.simulate(&current);
-        effects.iter().filter(|e| !domain.rivals(&e.name).is_empty()).any(|e| {
-            let off = domain.simulate(&domain.without(&current, &e.name));
-            stats::rms(&residual(&sim, &off)) < gate::CONTRIBUTION_MARGIN * stats::rms(&r_cur)
-        })
+        effects
+            .iter()
+            .filter(|e| !domain.rivals(&e.name).is_empty())
+            .any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < gate::CONTRIBUTION_MARGIN * stats::rms(&r_cur))
     };
     let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || too_small());
     if join_due && stopped.is_none() {
@@ -492,7 +505,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             current = m;
             r_cur = r1;
             let ranked = ranking.as_deref().unwrap_or_default();
-            refit_beside_join(domain, &y, ranked, &mut effects, &mut current, &mut r_cur, &|name: &str| {
+            let all = effects.len();
+            refit_rivals_beside(domain, &y, ranked, &mut effects, all, &mut current, &mut r_cur, &|name: &str| {
                 announce(format!("refitting `{name}` beside the joined effect"));
                 !watch.expired()
             });
@@ -612,23 +626,26 @@ fn twin_check<D: Domain>(domain: &D, y: &[f64], effects: &mut Vec<Effect>, ambig
     }
 }
 
-/// After a join, every named effect that has rivals ([`Domain::rivals`]) was chosen at
-/// its round without the effect the join found, against rivals refitted without it too.
-/// It and each rival not named are refitted afresh in its place beside the rest (from
-/// their first-round ranking), and the best replaces it where it fits better: the same
-/// effect whenever its SSE falls; a rival only when the BIC (its own parameter count)
-/// falls by more than [`DECISIVE_BIC`] (`evidence.swapped_for_rival` = 1). `go` announces
-/// each refit and says whether time is left for it.
-fn refit_beside_join<D: Domain>(
+/// Each of the first `count` named effects that has rivals ([`Domain::rivals`]) was
+/// chosen at its round without an effect named later (by a later round or a join),
+/// against rivals refitted without it too. It and each rival not named are refitted
+/// afresh in its place beside the rest (from their first-round ranking), and the best
+/// replaces it where it fits better: the same effect whenever its SSE falls; a rival
+/// only when the BIC (its own parameter count) falls by more than [`DECISIVE_BIC`]
+/// (`evidence.swapped_for_rival` = 1). `go` announces each refit and says whether time
+/// is left for it.
+#[allow(clippy::too_many_arguments)] // the workflow's state, and which effects to refit
+fn refit_rivals_beside<D: Domain>(
     domain: &D,
     y: &[f64],
     ranking: &[Ranked],
     effects: &mut [Effect],
+    count: usize,
     current: &mut D::Model,
     r_cur: &mut Vec<f64>,
     go: &dyn Fn(&str) -> bool,
 ) {
-    for i in 0..effects.len() {
+    for i in 0..count.min(effects.len()) {
         let name = effects[i].name.clone();
         let rivals = domain.rivals(&name);
         if rivals.is_empty() {
@@ -645,8 +662,7 @@ fn refit_beside_join<D: Domain>(
             else {
                 continue;
             };
-            let extra = width(&r.name) as f64 - width(&name) as f64;
-            let d = delta_bic(r_cur, &r1, 0) + extra * stats::effective_samples(&r1).min(r1.len() as f64).ln();
+            let d = delta_bic(r_cur, &r1, width(&r.name) as isize - width(&name) as isize);
             let bar = if r.name == name { 0.0 } else { -DECISIVE_BIC };
             if d < bar && best.as_ref().is_none_or(|b| d < b.3) {
                 best = Some((r.name.clone(), m, r1, d));
@@ -657,7 +673,7 @@ fn refit_beside_join<D: Domain>(
                 effects[i].evidence.insert("swapped_for_rival".into(), 1.0);
                 effects[i].name = n;
             }
-            effects[i].evidence.insert("delta_bic_refit_beside_join".into(), d);
+            effects[i].evidence.insert("delta_bic_refit_beside".into(), d);
             *current = m;
             *r_cur = r1;
         }
@@ -674,7 +690,7 @@ fn simulated_residual<D: Domain>(domain: &D, y: &[f64], model: &D::Model) -> Opt
 /// if its simulation is finite and the BIC falls: a refit that confirms an effect.
 fn confirmed<D: Domain>(domain: &D, y: &[f64], r0: &[f64], model: D::Model, k: usize) -> Option<(D::Model, Vec<f64>, f64)> {
     let r1 = simulated_residual(domain, y, &model)?;
-    let d = delta_bic(r0, &r1, k);
+    let d = delta_bic(r0, &r1, k as isize);
     (d < 0.0).then_some((model, r1, d))
 }
 
