@@ -122,10 +122,10 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 8] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518];
+const UNTOUCHED_MOTION_SEEDS: [u64; 10] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520];
 
 #[test]
-#[ignore = "fails the criteria on every seed but 7514 and 7518 (251 graded, 15 wrong over the eight, 10 of them Stribeck + belt-compliance pairs; issue #27 open); ~21 min for the eight in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "fails the criteria on every seed but 7514, 7518 and 7519 (311 graded, 18 wrong over the ten, 13 of them Stribeck + belt-compliance pairs; issue #27 open); ~26 min for the ten in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }
