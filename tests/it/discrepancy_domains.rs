@@ -125,7 +125,7 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 const UNTOUCHED_MOTION_SEEDS: [u64; 10] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520];
 
 #[test]
-#[ignore = "fails the criteria on every seed but 7514, 7518 and 7519 (311 graded, 18 wrong over the ten, 13 of them Stribeck + belt-compliance pairs; issue #27 open); ~26 min for the ten in a release test binary on 2 cores; figures in docs/discrepancy-domains.md; run with --ignored"]
+#[ignore = "fails the criteria on most seeds, below 95 % over the ten, mostly on Stribeck + belt-compliance pairs (issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~26 min for the ten in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }
@@ -205,6 +205,26 @@ fn the_motion_command_names_a_stick_slip_stribeck_excess_not_coulomb_friction() 
     // for the data made at half the workflow's step.
     let (before, after) = rms_before_after(&v);
     assert!(after < 1.25e-3 && after < 0.5 * before, "rms {before} -> {after} mm");
+}
+
+/// A weak Stribeck excess (4.5× the 3 µm noise, development seed 23) whose column
+/// ranks second by ERR, a hair behind a backlash column that fails the AR(1) test:
+/// the largest ERR among the candidates that pass is chosen, so the search does not
+/// stop at the first (it named nothing before). ~40 s in a release test binary.
+#[test]
+fn a_significant_effect_second_by_err_is_not_hidden_by_a_first_that_fails() {
+    let case = mhidden::generate(&mhidden::HiddenConfig::small(23)).expect("generate").into_iter().find(|c| c.answer.id == "stribeck-m1-n3um-0").expect("case");
+    let out = motion::discrepancy(case.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
+    let r = &out.report;
+    assert_ne!(out.ranking[0].name, "stribeck", "the case no longer tests the rule: {:?}", out.ranking);
+    assert_eq!(r.effects.iter().map(|e| e.name.as_str()).collect::<Vec<_>>(), ["stribeck"], "{r:?}");
+    let truth = &case.answer.effects[0].parameters;
+    let fitted = &r.effects[0].parameters;
+    let rel = |k: &str| fitted[k] / truth[k] - 1.0;
+    // Within the single-effect test's bounds (level 0.5 %, velocity 5 %).
+    assert!(rel("stribeck_n").abs() < 0.005 && rel("stribeck_v_m_s").abs() < 0.05, "{fitted:?} vs {truth:?}");
+    // The truth's residual: 3 µm noise, plus ≤ 0.2 µm for the data made at half the workflow's step.
+    assert!(r.after.rms < 3.25e-3 && r.after.rms < 0.5 * r.before.rms, "rms {} -> {}", r.before.rms, r.after.rms);
 }
 
 /// A Stribeck excess beside a soft belt, the 3 µm case of the development seed's

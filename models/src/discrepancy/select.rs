@@ -4,7 +4,8 @@
 //! §3.2, ERR eq. 3.17), where a candidate is a whole physical effect (one or
 //! more columns), with a full least-squares refit of every chosen column at
 //! each step, a partial-F test (Bonferroni over the candidates still in play)
-//! plus BIC as the stop rule, and collinear candidates reported as ambiguous
+//! plus BIC as the stop rule (the largest ERR among the candidates that pass is
+//! chosen; the search stops when none passes), and collinear candidates reported as ambiguous
 //! instead of one of them being guessed.
 //!
 //! The F test and BIC are generalised least squares with AR(1) errors
@@ -342,14 +343,17 @@ pub fn select(target: &[f64], base: &[Vec<f64>], candidates: &[Candidate], opts:
             out.ranking = order.iter().map(|&i| ranked[i].clone()).collect();
             first = false;
         }
-        let best = order[0];
-        let r = &ranked[best];
-        let significant = r.err > 0.0 && r.p_value < opts.alpha() / in_play.len() as f64 && r.delta_bic < 0.0;
-        if !significant {
+        let significant = |r: &Ranked| r.err > 0.0 && r.p_value < opts.alpha() / in_play.len() as f64 && r.delta_bic < 0.0;
+        // The largest ERR among the candidates that pass: raw ERR counts correlated
+        // samples the test does not, so a close first that fails must not hide one
+        // that passes (the Bonferroni bar already covers testing each in play).
+        let Some(best) = order.iter().copied().find(|&i| significant(&ranked[i])) else {
             break;
-        }
+        };
+        let r = &ranked[best];
         // Candidates whose base-orthogonal part is nearly parallel to the winner's.
-        let rivals: Vec<usize> = order[1..].iter().copied().filter(|&i| canonical_correlation(&scores[best].w, &scores[i].w) > opts.collinearity()).collect();
+        let rivals: Vec<usize> =
+            order.iter().copied().filter(|&i| i != best && canonical_correlation(&scores[best].w, &scores[i].w) > opts.collinearity()).collect();
         if rivals.is_empty() {
             for u in &scores[best].w {
                 let c = dot(u, &e);
