@@ -52,6 +52,14 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
             p_text(r.after.whiteness_p)
         )
     });
+    if r.before.gap_differs() || r.after.gap_differs() {
+        doc.paragraph(format!(
+            "Where the axis may stick–slip (slow moves and the rests after them) a trajectory's phase is chaotic, so there the gate compares the lag's mean and spread, not samples: by that measure the gap is {} → {} {unit} ({} % lower).",
+            num(r.before.gap_rms, 4),
+            num(r.after.gap_rms, 4),
+            num(100.0 * (1.0 - r.after.gap_rms / r.before.gap_rms), 3)
+        ));
+    }
     if !r.ambiguous.is_empty() {
         let groups: Vec<String> = r.ambiguous.iter().map(|g| format!("{{{}}}", g.join(", "))).collect();
         doc.paragraph(format!(
@@ -164,7 +172,7 @@ mod tests {
 
     #[test]
     fn sentences_carry_the_run_numbers() {
-        let m = |f: f64, r: f64| Metrics { fit_percent: f, rms: r, whiteness_p: 0.5 };
+        let m = |f: f64, r: f64| Metrics { fit_percent: f, rms: r, whiteness_p: 0.5, gap_rms: r };
         let o: Outcome<()> = Outcome {
             report: fdmlab_models::discrepancy::Report {
                 effects: vec![Effect {

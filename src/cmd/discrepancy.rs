@@ -206,6 +206,8 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         ("effects".to_string(), r.effects.len() as f64),
         ("before.rms".to_string(), r.before.rms),
         ("after.rms".to_string(), r.after.rms),
+        ("before.gap_rms".to_string(), r.before.gap_rms),
+        ("after.gap_rms".to_string(), r.after.gap_rms),
         ("before.fit_percent".to_string(), r.before.fit_percent),
         ("after.fit_percent".to_string(), r.after.fit_percent),
         ("not_significant".to_string(), r.not_significant.len() as f64),
@@ -252,6 +254,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
             "before: fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\nafter:  fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\n",
             r.before.fit_percent, r.before.rms, r.before.whiteness_p, r.after.fit_percent, r.after.rms, r.after.whiteness_p
         ));
+        if r.before.gap_differs() || r.after.gap_differs() {
+            s.push_str(&format!("gap with stick–slip spans by their statistics: {:.4} → {:.4}\n", r.before.gap_rms, r.after.gap_rms));
+        }
         s
     });
     Ok(())

@@ -12,13 +12,15 @@ use fdmlab_models::discrepancy::motion::{self, hidden as mhidden};
 use fdmlab_models::discrepancy::{Report, ValidSelectOptions, Watch};
 use fdmlab_models::parallel::par_map;
 
-/// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after.
+/// One case's verdict: truth (name, contribution/noise), named effects, RMS before/after
+/// (sample by sample, or `stick_slip`: the gap with the stick–slip spans by their statistics).
 struct Verdict {
     id: String,
     truth: Vec<(String, f64)>,
     named: Vec<String>,
     rms: (f64, f64),
     unexplained: bool,
+    stick_slip: bool,
 }
 
 fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
@@ -28,7 +30,31 @@ fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
         named: r.effects.iter().map(|e| e.name.clone()).collect(),
         rms: (r.before.rms, r.after.rms),
         unexplained: r.unexplained.is_some(),
+        stick_slip: false,
     }
+}
+
+/// A case with a Stribeck excess stick–slips on the protocol's slow moves, where a
+/// trajectory's phase is chaotic: its gap is graded by the slow spans' lag statistics
+/// (issue #27, Deliver 7), recomputed here from the simulations the report's residuals
+/// give, the rest of the record sample by sample.
+fn stick_slip_verdict(
+    id: &str,
+    truth: Vec<(String, f64)>,
+    data: &motion::MotionData,
+    out: &fdmlab_models::discrepancy::Outcome<motion::MotionModel>,
+) -> Verdict {
+    let mut v = verdict(id, truth, &out.report);
+    if v.truth.iter().any(|t| t.0 == "stribeck") {
+        let spans = motion::stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
+        let gap = |r: &[f64]| {
+            let sim: Vec<f64> = out.measured.iter().zip(r).map(|(y, r)| y - r).collect();
+            motion::stick_slip::statistics_gap_rms(&spans, &data.cmd_mm, &out.measured, &sim)
+        };
+        v.rms = (gap(&out.residual_before), gap(&out.residual_after));
+        v.stick_slip = true;
+    }
+    v
 }
 
 /// Check the issue's criteria over a set of verdicts; panics with the failures listed.
@@ -48,7 +74,10 @@ fn check_criteria_per_seed(domain: &str, seeds: &[u64], verdicts: impl Fn(u64) -
 /// The criteria over a set of verdicts: the report, or the report of what failed.
 fn criteria(domain: &str, v: &[Verdict]) -> Result<String, String> {
     let strong = |c: &Verdict| !c.truth.is_empty() && c.truth.iter().all(|t| t.1 > 3.0);
-    let listing = |c: &Verdict| format!("{} truth {:?} named {:?} rms {:.4} -> {:.4} unexplained {}", c.id, c.truth, c.named, c.rms.0, c.rms.1, c.unexplained);
+    let listing = |c: &Verdict| {
+        let measure = if c.stick_slip { "gap (stick–slip statistics)" } else { "rms" };
+        format!("{} truth {:?} named {:?} {measure} {:.4} -> {:.4} unexplained {}", c.id, c.truth, c.named, c.rms.0, c.rms.1, c.unexplained)
+    };
     let graded: Vec<&Verdict> = v.iter().filter(|c| strong(c)).collect();
     let wrong: Vec<&&Verdict> = graded
         .iter()
@@ -116,16 +145,16 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
     par_map(&cases, |c| {
         let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
-        verdict(&c.answer.id, truth, &out.report)
+        stick_slip_verdict(&c.answer.id, truth, &c.data, &out)
     })
 }
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 10] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520];
+const UNTOUCHED_MOTION_SEEDS: [u64; 12] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532];
 
 #[test]
-#[ignore = "fails the criteria on most seeds, below 95 % over the ten, mostly on Stribeck + belt-compliance pairs (issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~26 min for the ten in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on seven of the twelve seeds (95.2 % over the twelve, mostly Stribeck + belt-compliance pairs wrong; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~29 min for the twelve in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }

@@ -14,7 +14,9 @@
 //!    residual: the noise plus what the final model still misses. On a log the
 //!    library describes that is the noise; on a log of another model form it is the
 //!    model-form floor, and an effect smaller than what the model still cannot explain
-//!    cannot be told from that error. On four thermal mismatch logs (development
+//!    cannot be told from that error. Both RMS are taken by [`Domain::gap_rms`]:
+//!    sample by sample, except where the domain's output is chaotic (motion's
+//!    stick–slip spans, compared by their lag mean and spread). On four thermal mismatch logs (development
 //!    seeds) the wrongly named effects — a heater saturation standing for the loss's
 //!    curvature, a sensor lag or fan loss for a drifting ambient — contributed
 //!    0.6–1.2× the final residual's RMS, the right ones 3–24×; against σ̂ (3× smaller
@@ -88,7 +90,8 @@ pub struct ParameterCheck {
 /// The three tests of one effect.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Gate {
-    /// RMS of (final model with the effect − the same without it), data unit.
+    /// RMS of (final model with the effect − the same without it), data unit, by
+    /// [`Domain::gap_rms`] (as the two RMS below).
     #[serde(with = "nonfinite::scalar")]
     pub contribution_rms: f64,
     /// RMS of (final model − the model refitted without it): what the others cannot
@@ -99,7 +102,7 @@ pub struct Gate {
     /// The noise band's σ (the user's, or estimated from the data), for reference.
     #[serde(with = "nonfinite::scalar")]
     pub noise_sigma: f64,
-    /// RMS of the final model's residual: the size test's scale.
+    /// RMS of the final model's residual ([`Domain::gap_rms`]): the size test's scale.
     #[serde(with = "nonfinite::scalar", default)]
     pub residual_rms: f64,
     /// [`CONTRIBUTION_MARGIN`].
@@ -193,7 +196,7 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
     let sim = domain.simulate(model);
     let r = super::residual(y, &sim);
     let n = r.len() as f64;
-    let residual_rms = stats::rms(&r);
+    let residual_rms = domain.gap_rms(y, &sim);
     let params: Vec<Vec<EffectParameter>> = named.iter().map(|e| domain.effect_columns(model, e)).collect();
     let mut cols = domain.own_columns(model);
     let first = cols.len();
@@ -210,11 +213,8 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
         .zip(&params)
         .map(|(name, ps)| {
             let contribution_rms = switched_off_rms(domain, model, &sim, name);
-            let contribution_refit_rms = if domain.refit_contribution() {
-                domain.remove(model, name).map_or(contribution_rms, |m| stats::rms(&super::residual(&sim, &domain.simulate(&m))))
-            } else {
-                contribution_rms
-            };
+            let contribution_refit_rms =
+                if domain.refit_contribution() { domain.remove(model, name).map_or(contribution_rms, |m| gap_rms(domain, &sim, &m)) } else { contribution_rms };
             let idx: Vec<usize> = (at..at + ps.len()).collect();
             at += ps.len();
             let parameters: Vec<ParameterCheck> = ps
@@ -263,7 +263,12 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
 /// RMS of what `name` adds to `model`'s simulation `sim`: `sim` minus the simulation
 /// with the effect switched off (nothing refitted).
 pub fn switched_off_rms<D: Domain>(domain: &D, model: &D::Model, sim: &[f64], name: &str) -> f64 {
-    stats::rms(&super::residual(sim, &domain.simulate(&domain.without(model, name))))
+    gap_rms(domain, sim, &domain.without(model, name))
+}
+
+/// [`Domain::gap_rms`] between a simulation `sim` and that of `other`.
+fn gap_rms<D: Domain>(domain: &D, sim: &[f64], other: &D::Model) -> f64 {
+    domain.gap_rms(sim, &domain.simulate(other))
 }
 
 /// Forward-difference sensitivity column of a parameter at `value`:

@@ -46,8 +46,7 @@
 //! residual still leaves the noise band (or a named effect with rivals is too
 //! small beside it for the gate), one joint refit of a masked effect (`join`), after which
 //! every named effect with rivals is refitted afresh beside the joined one likewise;
-//! then every named effect
-//! must earn its name at the final model
+//! then every named effect must earn its name at the final model
 //! ([`gate`]: contribution against the noise, confidence region excluding zero,
 //! physical range) or is refitted out and listed `not_significant`; finally
 //! everything is recomputed on the augmented model and a residual still outside
@@ -175,6 +174,12 @@ pub trait Domain {
     fn refit_contribution(&self) -> bool {
         true
     }
+    /// RMS gap between two output series `a − b` on which [`gate`]'s size test is
+    /// measured. The default: sample by sample. A domain whose output is chaotic where
+    /// an effect acts (motion's stick–slip) compares statistics over those spans.
+    fn gap_rms(&self, a: &[f64], b: &[f64]) -> f64 {
+        stats::rms(&residual(a, b))
+    }
 }
 
 /// Fit, RMS and whiteness of one model on the data.
@@ -189,6 +194,22 @@ pub struct Metrics {
     /// Ljung–Box p-value of the residual (small: structure left).
     #[serde(with = "nonfinite::scalar")]
     pub whiteness_p: f64,
+    /// The gap as the gate measures it ([`Domain::gap_rms`]): `rms`, except where the
+    /// domain compares statistics (motion: the stick–slip spans' lag mean and spread).
+    #[serde(with = "nonfinite::scalar", default = "unknown")]
+    pub gap_rms: f64,
+}
+
+/// `NaN`: not recorded (reports written before the field existed).
+fn unknown() -> f64 {
+    f64::NAN
+}
+
+impl Metrics {
+    /// Whether the gate's measure differs from the sample-by-sample RMS.
+    pub fn gap_differs(&self) -> bool {
+        self.gap_rms.is_finite() && (self.gap_rms - self.rms).abs() > 1e-9 * self.rms.abs().max(f64::MIN_POSITIVE)
+    }
 }
 
 /// One effect added to the model.
@@ -312,9 +333,9 @@ fn residual(y: &[f64], y_hat: &[f64]) -> Vec<f64> {
     y.iter().zip(y_hat).map(|(a, b)| a - b).collect()
 }
 
-fn metrics(y: &[f64], y_hat: &[f64]) -> Metrics {
+fn metrics<D: Domain>(domain: &D, y: &[f64], y_hat: &[f64]) -> Metrics {
     let r = residual(y, y_hat);
-    Metrics { fit_percent: stats::fit_percent(y, y_hat), rms: stats::rms(&r), whiteness_p: stats::ljung_box(&r, 0).p_value }
+    Metrics { fit_percent: stats::fit_percent(y, y_hat), rms: stats::rms(&r), whiteness_p: stats::ljung_box(&r, 0).p_value, gap_rms: domain.gap_rms(y, y_hat) }
 }
 
 /// `n_eff·ln(SSE₁/SSE₀) + k·ln n_eff` with `n_eff` from the new residual (`k` the
@@ -451,15 +472,19 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             break;
         }
     }
+    // `refit_rivals_beside` on the first `count` named effects, announced, until the time runs out.
+    let refit_beside = |effects: &mut Vec<Effect>, count: usize, current: &mut D::Model, r_cur: &mut Vec<f64>, beside: &str| {
+        let go = |name: &str| {
+            announce(format!("refitting `{name}` beside {beside}"));
+            !watch.expired()
+        };
+        refit_rivals_beside(domain, &y, ranking.as_deref().unwrap_or_default(), effects, count, current, r_cur, &go);
+    };
     // A named effect with rivals was chosen against them without the effects named
     // after it: each is refitted afresh beside them (as after a join, below).
     if effects.len() > 1 && stopped.is_none() {
-        let ranked = ranking.as_deref().unwrap_or_default();
         let earlier = effects.len() - 1;
-        refit_rivals_beside(domain, &y, ranked, &mut effects, earlier, &mut current, &mut r_cur, &|name: &str| {
-            announce(format!("refitting `{name}` beside the effects named after it"));
-            !watch.expired()
-        });
+        refit_beside(&mut effects, earlier, &mut current, &mut r_cur, "the effects named after it");
     }
     // Effects named, yet the residual still leaves the noise band and no further
     // effect passed: one may be masked by a named one (its column around the named
@@ -477,7 +502,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         effects
             .iter()
             .filter(|e| !domain.rivals(&e.name).is_empty())
-            .any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < gate::CONTRIBUTION_MARGIN * stats::rms(&r_cur))
+            .any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim))
     };
     let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || too_small());
     if join_due && stopped.is_none() {
@@ -504,12 +529,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });
             current = m;
             r_cur = r1;
-            let ranked = ranking.as_deref().unwrap_or_default();
             let all = effects.len();
-            refit_rivals_beside(domain, &y, ranked, &mut effects, all, &mut current, &mut r_cur, &|name: &str| {
-                announce(format!("refitting `{name}` beside the joined effect"));
-                !watch.expired()
-            });
+            refit_beside(&mut effects, all, &mut current, &mut r_cur, "the joined effect");
         }
     }
     if stopped.is_none() && !effects.is_empty() {
@@ -560,8 +581,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         noise_sigma: sigma,
         noise_given: opts.noise_sigma().is_some(),
         windows: stats::windows(&r0, sigma, &time_s),
-        before: metrics(&y, &sim0),
-        after: metrics(&y, &sim1),
+        before: metrics(domain, &y, &sim0),
+        after: metrics(domain, &y, &sim1),
         not_significant,
         unexplained,
         stopped,

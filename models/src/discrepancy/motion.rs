@@ -15,6 +15,7 @@
 pub mod axis;
 pub mod hidden;
 pub mod mismatch;
+pub mod stick_slip;
 
 use super::simfit;
 use super::{Candidate, Domain, Outcome, Ranked, ValidSelectOptions};
@@ -456,13 +457,16 @@ pub struct MotionDomain {
     data: MotionData,
     /// When grown fits stop ([`identify_grown`]).
     deadline: Option<Instant>,
+    /// The slow spans compared by their statistics ([`stick_slip::slow_spans`]).
+    spans: Vec<(usize, usize)>,
 }
 
 impl MotionDomain {
     /// Check the data and hold them.
     pub fn new(data: MotionData) -> Result<Self, ModelError> {
         data.check()?;
-        Ok(Self { data, deadline: None })
+        let spans = stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
+        Ok(Self { data, deadline: None, spans })
     }
 }
 
@@ -489,6 +493,9 @@ impl Domain for MotionDomain {
     }
     fn simulate(&self, model: &MotionModel) -> Vec<f64> {
         model.predict_mm(&self.data).unwrap_or_else(|_| vec![f64::NAN; self.data.t_s.len()])
+    }
+    fn gap_rms(&self, a: &[f64], b: &[f64]) -> f64 {
+        stick_slip::statistics_gap_rms(&self.spans, &self.data.cmd_mm, a, b)
     }
     fn base_columns(&self, model: &MotionModel) -> Vec<Vec<f64>> {
         let Ok(raw) = model.simulate_mm(&self.data) else {
