@@ -35,23 +35,13 @@ fn verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
 }
 
 /// A case with a Stribeck excess stick–slips on the protocol's slow moves, where a
-/// trajectory's phase is chaotic: its gap is graded by the slow spans' lag statistics
-/// (issue #27, Deliver 7), recomputed here from the simulations the report's residuals
-/// give, the rest of the record sample by sample.
-fn stick_slip_verdict(
-    id: &str,
-    truth: Vec<(String, f64)>,
-    data: &motion::MotionData,
-    out: &fdmlab_models::discrepancy::Outcome<motion::MotionModel>,
-) -> Verdict {
-    let mut v = verdict(id, truth, &out.report);
+/// trajectory's phase is chaotic: its gap is graded by the report's `gap_rms` (the slow
+/// spans by their lag statistics, the rest of the record sample by sample; issue #27,
+/// Deliver 7).
+fn stick_slip_verdict(id: &str, truth: Vec<(String, f64)>, r: &Report) -> Verdict {
+    let mut v = verdict(id, truth, r);
     if v.truth.iter().any(|t| t.0 == "stribeck") {
-        let spans = motion::stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
-        let gap = |r: &[f64]| {
-            let sim: Vec<f64> = out.measured.iter().zip(r).map(|(y, r)| y - r).collect();
-            motion::stick_slip::statistics_gap_rms(&spans, &data.cmd_mm, &out.measured, &sim)
-        };
-        v.rms = (gap(&out.residual_before), gap(&out.residual_after));
+        v.rms = (r.before.gap_rms, r.after.gap_rms);
         v.stick_slip = true;
     }
     v
@@ -145,7 +135,7 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
     par_map(&cases, |c| {
         let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
-        stick_slip_verdict(&c.answer.id, truth, &c.data, &out)
+        stick_slip_verdict(&c.answer.id, truth, &out.report)
     })
 }
 

@@ -499,10 +499,8 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // the disagreement the named effect leaves.
     let too_small = || {
         let sim = domain.simulate(&current);
-        effects
-            .iter()
-            .filter(|e| !domain.rivals(&e.name).is_empty())
-            .any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim))
+        let bar = gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim);
+        effects.iter().filter(|e| !domain.rivals(&e.name).is_empty()).any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < bar)
     };
     let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || too_small());
     if join_due && stopped.is_none() {
