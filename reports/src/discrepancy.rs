@@ -52,7 +52,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
             p_text(r.after.whiteness_p)
         )
     });
-    if r.before.gap_differs() || r.after.gap_differs() {
+    if r.gap_differs() {
         doc.paragraph(format!(
             "Where the axis may stick–slip (slow moves and the rests after them) a trajectory's phase is chaotic, so there the gate compares the lag's mean and spread, not samples: by that measure the gap is {} → {} {unit} ({} % lower).",
             num(r.before.gap_rms, 4),

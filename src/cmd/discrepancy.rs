@@ -254,7 +254,7 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
             "before: fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\nafter:  fit {:.2} %, RMS {:.4}, whiteness p {:.2e}\n",
             r.before.fit_percent, r.before.rms, r.before.whiteness_p, r.after.fit_percent, r.after.rms, r.after.whiteness_p
         ));
-        if r.before.gap_differs() || r.after.gap_differs() {
+        if r.gap_differs() {
             s.push_str(&format!("gap with stick–slip spans by their statistics: {:.4} → {:.4}\n", r.before.gap_rms, r.after.gap_rms));
         }
         s

@@ -295,6 +295,14 @@ pub struct Report {
     pub stopped: Option<Stopped>,
 }
 
+impl Report {
+    /// Whether the gate's measure of the gap differs from the sample-by-sample RMS
+    /// before or after (the report then gives both).
+    pub fn gap_differs(&self) -> bool {
+        self.before.gap_differs() || self.after.gap_differs()
+    }
+}
+
 /// Everything a run computed: the [`Report`] plus the series and tables the
 /// document and the artifacts need.
 #[derive(Debug, Clone, Serialize)]

@@ -289,6 +289,18 @@ impl AxisPlant {
     /// `max_step_s`, sub-stepped through Stribeck transitions (`substep`); friction
     /// modes switch between (sub-)steps as in `hbot::twin`.
     pub fn simulate(&self, t_s: &[f64], cmd_m: &impl Fn(f64) -> f64, max_step_s: f64) -> Result<Vec<f64>, ModelError> {
+        self.simulate_while(t_s, cmd_m, max_step_s, |_| true)
+    }
+
+    /// [`Self::simulate`], stopped where `keep`, given the samples so far, is false: then
+    /// those samples (the same values as the whole simulation's first ones).
+    pub fn simulate_while(
+        &self,
+        t_s: &[f64],
+        cmd_m: &impl Fn(f64) -> f64,
+        max_step_s: f64,
+        mut keep: impl FnMut(&[f64]) -> bool,
+    ) -> Result<Vec<f64>, ModelError> {
         if !(max_step_s.is_finite() && max_step_s > 0.0) {
             return Err(ModelError::invalid("max_step_s", max_step_s, "must be > 0"));
         }
@@ -303,6 +315,9 @@ impl AxisPlant {
         let mut out = Vec::with_capacity(t_s.len());
         out.push(x[1]);
         for w in t_s.windows(2) {
+            if !keep(&out) {
+                return Ok(out);
+            }
             let dt = w[1] - w[0];
             if !(dt.is_finite() && dt > 0.0) {
                 return Err(ModelError::Shape(format!("time must increase: {} then {}", w[0], w[1])));
