@@ -141,10 +141,10 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 12] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532];
+const UNTOUCHED_MOTION_SEEDS: [u64; 14] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534];
 
 #[test]
-#[ignore = "fails the criteria on seven of the twelve seeds (95.2 % over the twelve, mostly Stribeck + belt-compliance pairs wrong; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~29 min for the twelve in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on nine of the fourteen seeds (94.7 % over the fourteen, mostly Stribeck + belt-compliance pairs wrong; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~32 min for the fourteen in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }

@@ -408,6 +408,7 @@ fn output_sse(data: &MotionData, model: &MotionModel) -> Result<f64, ModelError>
     Ok(sum_of_squares(&output_error(data, model)?))
 }
 
+/// Σ r².
 fn sum_of_squares(r: &[f64]) -> f64 {
     r.iter().map(|r| r * r).sum()
 }
@@ -455,7 +456,8 @@ fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<MotionModel, 
         let centre = best.1;
         // The least error found so far (a non-negative f64's bits order as its value):
         // a point is simulated only while it can still beat it, so the scan picks what the
-        // exhaustive one would.
+        // exhaustive one would (it keeps the strictly least error: a stopped point is
+        // strictly worse than one evaluated; another pick rule would need another bound).
         let least = AtomicU64::new(best.0.to_bits());
         // Every point on every core; the best taken in grid order (first of equals).
         let points = crate::parallel::par_map(&grid, |&(i, j)| {
