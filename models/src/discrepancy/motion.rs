@@ -87,14 +87,16 @@ impl MotionModel {
 
     /// Simulated axis position (mm, offset not included) at the data's times.
     pub fn simulate_mm(&self, data: &MotionData) -> Result<Vec<f64>, ModelError> {
-        self.simulate_mm_while(data, |_| true)
+        self.simulate_mm_while(data, |_, _| true)
     }
 
-    /// [`Self::simulate_mm`], stopped where `keep`, given the samples so far (m), is false.
-    fn simulate_mm_while(&self, data: &MotionData, keep: impl FnMut(&[f64]) -> bool) -> Result<Vec<f64>, ModelError> {
+    /// [`Self::simulate_mm`], stopped where `keep`, given a sample's index and value (mm),
+    /// is false.
+    fn simulate_mm_while(&self, data: &MotionData, mut keep: impl FnMut(usize, f64) -> bool) -> Result<Vec<f64>, ModelError> {
         let plant = self.plant()?;
         let interp = axis::Interpolator::new(&data.t_s, &data.cmd_mm);
         let cmd = |t: f64| interp.at(t) * 1e-3;
+        let keep = |y: &[f64]| y.last().is_none_or(|last| keep(y.len() - 1, last * 1e3));
         Ok(plant.simulate_while(&data.t_s, &cmd, plant.default_step_s(), keep)?.into_iter().map(|y| y * 1e3).collect())
     }
 
@@ -421,9 +423,8 @@ fn sum_of_squares(r: &[f64]) -> f64 {
 fn output_sse_below(data: &MotionData, model: &MotionModel, bound: f64) -> Result<f64, ModelError> {
     let limit = bound * (1.0 + 1e-9);
     let (mut count, mut mean, mut m2) = (0usize, 0.0, 0.0);
-    let y = model.simulate_mm_while(data, |y| {
-        let Some(&last) = y.last() else { return true };
-        let d = last * 1e3 - data.meas_mm[y.len() - 1];
+    let y = model.simulate_mm_while(data, |i, y| {
+        let d = y - data.meas_mm[i];
         count += 1;
         let delta = d - mean;
         mean += delta / count as f64;

@@ -57,19 +57,21 @@ pub fn statistics_gap_rms(spans: &[(usize, usize)], cmd_mm: &[f64], a: &[f64], b
     if n == 0 {
         return f64::NAN;
     }
+    // Sample by sample over [lo, hi).
+    let squared = |lo: usize, hi: usize| a[lo..hi].iter().zip(&b[lo..hi]).map(|(x, y)| (x - y) * (x - y)).sum::<f64>();
     let mut sum = 0.0;
     let mut at = 0;
     for &(s, e) in spans {
         if s < at || e > n {
             continue;
         }
-        sum += a[at..s].iter().zip(&b[at..s]).map(|(x, y)| (x - y) * (x - y)).sum::<f64>();
+        sum += squared(at, s);
         let (ma, sa) = lag_mean_sd(&a[s..e], &cmd_mm[s..e]);
         let (mb, sb) = lag_mean_sd(&b[s..e], &cmd_mm[s..e]);
         sum += (e - s) as f64 * ((ma - mb).powi(2) + (sa - sb).powi(2));
         at = e;
     }
-    sum += a[at..n].iter().zip(&b[at..n]).map(|(x, y)| (x - y) * (x - y)).sum::<f64>();
+    sum += squared(at, n);
     (sum / n as f64).sqrt()
 }
 
@@ -83,11 +85,8 @@ fn lag_mean_sd(pos: &[f64], cmd: &[f64]) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::metrics::rms as sample_rms;
     use proptest::prelude::*;
-
-    fn sample_rms(a: &[f64], b: &[f64]) -> f64 {
-        (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len() as f64).sqrt()
-    }
 
     #[test]
     fn the_protocol_s_slow_moves_and_the_rests_after_them_are_the_spans() {
