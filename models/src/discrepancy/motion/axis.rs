@@ -262,7 +262,9 @@ impl AxisPlant {
     /// The belt's driven end for motor side `z` and last end position `play`.
     #[inline]
     fn belt_end(&self, z: f64, play: f64) -> f64 {
-        play.clamp(z - self.backlash, z + self.backlash)
+        // Not `clamp`: it panics on a NaN bound, and a diverging trial state must reach
+        // the finite check at the sample's end (an error the fit steps back from).
+        play.max(z - self.backlash).min(z + self.backlash)
     }
 
     #[inline]
