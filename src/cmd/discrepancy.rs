@@ -112,6 +112,11 @@ struct HiddenArgs {
     /// cases per noise level).
     #[arg(long, value_enum, default_value_t = SetKind::Hidden)]
     set: SetKind,
+    /// Motion hidden set only: centre of the true motor inertia's draw (±20 % around
+    /// it), as a factor of the source's value, which the workflow's base fit also
+    /// tries as a start (default 1; 0.7 and 1.3 test a generator 30 % off it).
+    #[arg(long = "inertia-centre", value_name = "FACTOR")]
+    inertia_centre: Option<f64>,
 }
 
 /// Kind of generated set.
@@ -264,6 +269,9 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
 
 fn hidden_cmd(h: HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     let domain = h.domain;
+    if h.inertia_centre.is_some() && (domain != DomainName::Motion || h.set != SetKind::Hidden) {
+        return Err(bad("--inertia-centre applies to the motion hidden set only (--domain motion, --set hidden)"));
+    }
     if h.set == SetKind::Mismatch {
         return match domain {
             DomainName::Thermal => mismatch_thermal(&h, ctx),
@@ -365,7 +373,8 @@ fn write_set<C: serde::Serialize, A: serde::Serialize>(
 /// `--null-cases` effect-free cases per noise level).
 fn hidden_motion(h: &HiddenArgs, ctx: &Ctx) -> anyhow::Result<()> {
     use fdmlab_models::discrepancy::motion::hidden as mh;
-    let config = mh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, ..mh::HiddenConfig::full(h.seed) };
+    let full = mh::HiddenConfig::full(h.seed);
+    let config = mh::HiddenConfig { replicates: h.seeds, zero_cases: h.null_cases, j_m_centre: h.inertia_centre.unwrap_or(full.j_m_centre), ..full };
     let cases = mh::generate(&config).map_err(|e| bad(e.to_string()))?;
     let files = fdmlab_datasets::discrepancy::motion::hidden_files(&config, &cases)?;
     write_hidden(&h.out, DomainName::Motion, mh::GENERATOR, h.seed, files, ctx)

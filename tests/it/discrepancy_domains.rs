@@ -57,7 +57,13 @@ fn check_criteria(domain: &str, v: &[Verdict]) {
 /// Check the criteria of every seed, each seed's figures printed, then fail with every
 /// failing seed's report (a failing seed does not hide the next one's figures).
 fn check_criteria_per_seed(domain: &str, seeds: &[u64], verdicts: impl Fn(u64) -> Vec<Verdict>) {
-    let failed: Vec<String> = seeds.iter().filter_map(|&seed| criteria(&format!("{domain}, untouched seed {seed}"), &verdicts(seed)).err()).collect();
+    check_every(seeds.iter().map(|&seed| (format!("{domain}, untouched seed {seed}"), verdicts(seed))));
+}
+
+/// Check the criteria of every labelled set, each set's figures printed as it is graded,
+/// then fail with every failing set's report.
+fn check_every(sets: impl Iterator<Item = (String, Vec<Verdict>)>) {
+    let failed: Vec<String> = sets.filter_map(|(label, v)| criteria(&label, &v).err()).collect();
     assert!(failed.is_empty(), "{}", failed.join("\n\n"));
 }
 
@@ -131,7 +137,11 @@ fn motion_hidden_set_meets_the_issue_criteria() {
 }
 
 fn motion_verdicts(seed: u64) -> Vec<Verdict> {
-    let cases = mhidden::generate(&mhidden::HiddenConfig::small(seed)).expect("generate");
+    motion_verdicts_of(&mhidden::HiddenConfig::small(seed))
+}
+
+fn motion_verdicts_of(config: &mhidden::HiddenConfig) -> Vec<Verdict> {
+    let cases = mhidden::generate(config).expect("generate");
     par_map(&cases, |c| {
         let out = motion::discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &Watch::default()).expect("workflow");
         let truth = c.answer.effects.iter().map(|e| (e.name.clone(), e.contribution_rms_mm / c.answer.noise_sd_mm)).collect();
@@ -141,10 +151,27 @@ fn motion_verdicts(seed: u64) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 14] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534];
+const UNTOUCHED_MOTION_SEEDS: [u64; 16] = [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534, 7535, 7536];
+
+/// Untouched seeds whose sets are also drawn with the true J_M centred 30 % below and
+/// above the source's value, the workflow's prior start (issue #27, Deliver 3 and 5).
+const OFF_CENTRE_MOTION_SEEDS: [u64; 2] = [7535, 7536];
+
+/// The criteria on sets whose true J_M is drawn around 0.7× and 1.3× the prior (the
+/// same seeds centred are in the untouched list).
+#[test]
+#[ignore = "fails the criteria on all four sets (Stribeck + belt-compliance pairs blank, as on the centred seeds; issue #27 open); figures in docs/discrepancy-domains.md; ~8.5 min in a release test binary on 2 cores; run with --ignored"]
+fn motion_hidden_set_drawn_off_the_prior_meets_the_criteria() {
+    check_every([0.7, 1.3].into_iter().flat_map(|centre| {
+        OFF_CENTRE_MOTION_SEEDS.into_iter().map(move |seed| {
+            let config = mhidden::HiddenConfig { j_m_centre: centre, ..mhidden::HiddenConfig::small(seed) };
+            (format!("motion, J_M centred at {centre}× the prior, untouched seed {seed}"), motion_verdicts_of(&config))
+        })
+    }));
+}
 
 #[test]
-#[ignore = "fails the criteria on nine of the fourteen seeds (94.7 % over the fourteen, mostly Stribeck + belt-compliance pairs wrong; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~32 min for the fourteen in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on eleven of the sixteen seeds (94.6 % over the sixteen, mostly Stribeck + belt-compliance pairs wrong; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~36 min for the sixteen in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }
@@ -244,6 +271,26 @@ fn a_significant_effect_second_by_err_is_not_hidden_by_a_first_that_fails() {
     assert!(rel("stribeck_n").abs() < 0.005 && rel("stribeck_v_m_s").abs() < 0.05, "{fitted:?} vs {truth:?}");
     // The truth's residual: 3 µm noise, plus ≤ 0.2 µm for the data made at half the workflow's step.
     assert!(r.after.rms < 3.25e-3 && r.after.rms < 0.5 * r.before.rms, "rms {} -> {}", r.before.rms, r.after.rms);
+}
+
+/// `--inertia-centre` moves the true J_M's draw of the motion hidden set (recorded in
+/// answers.json) and is refused for any other set, by name.
+#[test]
+fn the_inertia_centre_is_recorded_and_refused_elsewhere() {
+    let sb = crate::common::Sandbox::new();
+    sb.ok(&["discrepancy", "hidden", "--domain", "motion", "--seed", "3", "--out", "h", "--seeds", "1", "--null-cases", "1", "--inertia-centre", "1.3"]);
+    let answers: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sb.path().join("h/answers.json")).expect("answers")).expect("json");
+    assert_eq!(answers["config"]["j_m_centre"].as_f64(), Some(1.3));
+    // Drawn within ±20 % (e^±0.2) of 1.3× the source's J_M.
+    let prior = fdmlab_models::hbot::HbotParams::source_identified().j_m_kgm2;
+    for c in answers["cases"].as_array().expect("cases") {
+        let r = c["answer"]["j_m_kgm2"].as_f64().expect("J_M") / (1.3 * prior);
+        assert!((-0.2..=0.2).contains(&r.ln()), "{r}");
+    }
+    let out = sb.run(&["discrepancy", "hidden", "--domain", "thermal", "--out", "t", "--inertia-centre", "1.3"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--inertia-centre"));
+    assert!(!sb.path().join("t").exists(), "nothing written");
 }
 
 /// A Stribeck excess beside a soft belt, the 3 µm case of the development seed's

@@ -68,6 +68,14 @@ pub struct HiddenConfig {
     pub zero_cases: usize,
     /// Pairs switched on together (each at its middle magnitude).
     pub pairs: Vec<[MotionEffect; 2]>,
+    /// Centre of the true J_M's draw as a factor of the source's value, which is the
+    /// workflow's prior start (1: centred on it; 0.7 and 1.3: issue #27's ±30 %).
+    #[serde(default = "centred")]
+    pub j_m_centre: f64,
+}
+
+fn centred() -> f64 {
+    1.0
 }
 
 impl HiddenConfig {
@@ -75,7 +83,7 @@ impl HiddenConfig {
     /// magnitudes × 2 noise levels × 2 replicates, 8 effect-free cases per noise level
     /// and 6 pairs.
     pub fn full(seed: u64) -> Self {
-        Self { seed, axis: Axis::Y, sample_dt_s: 0.01, noise_sd_mm: vec![1e-3, 3e-3], replicates: 2, zero_cases: 8, pairs: default_pairs() }
+        Self { seed, axis: Axis::Y, sample_dt_s: 0.01, noise_sd_mm: vec![1e-3, 3e-3], replicates: 2, zero_cases: 8, pairs: default_pairs(), j_m_centre: 1.0 }
     }
     /// The set the tests run: 1 replicate, fewer effect-free cases and pairs.
     pub fn small(seed: u64) -> Self {
@@ -155,6 +163,9 @@ pub fn generate(config: &HiddenConfig) -> Result<Vec<HiddenCase>, ModelError> {
     if config.noise_sd_mm.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
         return Err(ModelError::invalid("noise_sd_mm", format!("{:?}", config.noise_sd_mm), "must be finite and ≥ 0"));
     }
+    if !(config.j_m_centre.is_finite() && (0.1..=10.0).contains(&config.j_m_centre)) {
+        return Err(ModelError::invalid("j_m_centre", config.j_m_centre, "must be within 0.1–10 (a factor of the source's J_M)"));
+    }
     let mut plan: Vec<Planned> = Vec::new();
     for &noise in &config.noise_sd_mm {
         for k in 0..config.zero_cases {
@@ -194,7 +205,7 @@ fn make_case(
     let mut rng = seeded(config.seed, stream);
     let mut truth = MotionModel::base(config.axis);
     // The base model's own parameter is off too, so the base fit has work to do.
-    truth.params.j_m_kgm2 *= rng.random_range(-0.2f64..0.2).exp();
+    truth.params.j_m_kgm2 *= config.j_m_centre * rng.random_range(-0.2f64..0.2).exp();
     for &(effect, mag) in on {
         let k_belt = truth.belt_stiffness_n_per_m();
         switch_on(&mut truth.effects, effect, mag, k_belt, &mut rng);
@@ -228,4 +239,26 @@ fn make_case(
     let answer =
         HiddenAnswer { id, effects, noise_sd_mm: noise_mm, j_m_kgm2: truth.params.j_m_kgm2, generator: GENERATOR.to_string(), seed: config.seed, stream };
     Ok(HiddenCase { data, answer })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_inertia_centre_moves_only_the_true_inertia() {
+        // The same seed at centre 1 and 1.3: every case's true J_M scaled by exactly
+        // 1.3 and everything else drawn alike (the same streams); a centre outside
+        // 0.1–10 is refused by name.
+        let small = |c: f64| HiddenConfig { noise_sd_mm: vec![1e-3], zero_cases: 1, pairs: Vec::new(), j_m_centre: c, ..HiddenConfig::small(5) };
+        let (a, b) = (generate(&small(1.0)).expect("centred"), generate(&small(1.3)).expect("off"));
+        assert_eq!(a.len(), b.len());
+        for (a, b) in a.iter().zip(&b) {
+            assert!((b.answer.j_m_kgm2 / a.answer.j_m_kgm2 - 1.3).abs() < 1e-12);
+            assert_eq!(a.answer.stream, b.answer.stream);
+            assert_eq!(a.answer.effects.iter().map(|e| &e.parameters).collect::<Vec<_>>(), b.answer.effects.iter().map(|e| &e.parameters).collect::<Vec<_>>());
+        }
+        let err = generate(&small(0.0)).expect_err("centre 0");
+        assert!(err.to_string().contains("j_m_centre"), "{err}");
+    }
 }
