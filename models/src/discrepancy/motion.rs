@@ -249,6 +249,14 @@ pub fn base_columns(model: &MotionModel, data: &MotionData, base_mm: &[f64]) -> 
     Ok(vec![y.iter().zip(base_mm).map(|(a, b)| a - b).collect(), vec![1.0; base_mm.len()]])
 }
 
+/// Where every motion fit stops shrinking its step: 10⁻⁶ of the parameters' norm (in
+/// units of their scales), a thousandth of the finite-difference step. A stick–slip
+/// cost is only piecewise smooth: at a kink LM rejected trial after trial (39 trials
+/// for 4 Jacobians in one fit) down to the crate's default of 30 ε (7·10⁻¹⁵), each a
+/// whole simulation. Chosen on development seed 3's slowest cases: 10⁻⁶ and 10⁻⁵ kept
+/// their fits within 0.03 % and 0.2 % of F_s; 10⁻⁴ moved one into another basin.
+const STEP_XTOL: f64 = 1e-6;
+
 /// Re-identify by simulation: J_M (log scale) and every parameter of `effects`
 /// (in units of their scales), the offset projected out as the mean residual.
 /// Starts from `model` (whose effect values seed the search).
@@ -300,7 +308,7 @@ fn identify_within(data: &MotionData, model: &MotionModel, effects: &[MotionEffe
         Some(r)
     };
     let steps = vec![1e-3; p0.len()];
-    let fit = simfit::fit_within(residual, &p0, &steps, patience)?;
+    let fit = simfit::fit_within(residual, &p0, &steps, simfit::Stop { patience, xtol: STEP_XTOL })?;
     let mut out = build(&fit.params);
     let y = out.simulate_mm(data)?;
     out.offset_mm = mean_difference(&data.meas_mm, &y);

@@ -73,14 +73,28 @@ impl<F: Fn(&[f64]) -> Option<Vec<f64>> + Sync> LeastSquaresProblem<f64, Dyn, Dyn
 /// LM's patience in [`fit`]: it stops after `PATIENCE·(parameters + 1)` evaluations.
 pub const PATIENCE: usize = 60;
 
+/// When LM stops besides convergence of the cost (see [`fit_within`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stop {
+    /// After `patience·(parameters + 1)` evaluations.
+    pub patience: usize,
+    /// Once its step (trust region) is at most `xtol` times the parameters' norm.
+    pub xtol: f64,
+}
+
+impl Stop {
+    /// [`fit`]'s: [`PATIENCE`] and the crate's `xtol` (30 ε).
+    pub const DEFAULT: Stop = Stop { patience: PATIENCE, xtol: 30.0 * f64::EPSILON };
+}
+
 /// Minimise ‖r(p)‖² from `p0`; `steps[j]` is the finite-difference step of p_j and
 /// `r` returns `None` where the model cannot be simulated (LM then shrinks its step).
 pub fn fit(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f64], steps: &[f64]) -> Result<SimFit, ModelError> {
-    fit_within(residuals, p0, steps, PATIENCE)
+    fit_within(residuals, p0, steps, Stop::DEFAULT)
 }
 
-/// [`fit`] with LM stopping after `patience·(parameters + 1)` evaluations.
-pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f64], steps: &[f64], patience: usize) -> Result<SimFit, ModelError> {
+/// [`fit`] with LM stopping where `stop` says.
+pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f64], steps: &[f64], stop: Stop) -> Result<SimFit, ModelError> {
     if steps.len() != p0.len() || steps.iter().any(|s| !(s.is_finite() && *s != 0.0)) {
         return Err(ModelError::Shape(format!("{} finite-difference steps for {} parameters", steps.len(), p0.len())));
     }
@@ -92,7 +106,7 @@ pub fn fit_within(residuals: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync, p0: &[f
     if p0.is_empty() {
         return Ok(SimFit { params: Vec::new(), sse: r0.norm_squared(), evaluations: 1 });
     }
-    let (problem, report) = LevenbergMarquardt::new().with_patience(patience).minimize(problem);
+    let (problem, report) = LevenbergMarquardt::new().with_patience(stop.patience).with_xtol(stop.xtol).minimize(problem);
     let Some(r) = problem.r.as_ref() else {
         return Err(ModelError::Numerical(format!("identification by simulation failed: {:?}", report.termination)));
     };
