@@ -289,7 +289,7 @@ fn the_inertia_centre_is_recorded_and_refused_elsewhere() {
     }
     let out = sb.run(&["discrepancy", "hidden", "--domain", "thermal", "--out", "t", "--inertia-centre", "1.3"]);
     assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--inertia-centre"));
+    assert!(crate::common::stderr(&out).contains("--inertia-centre"), "{}", crate::common::stderr(&out));
     assert!(!sb.path().join("t").exists(), "nothing written");
 }
 

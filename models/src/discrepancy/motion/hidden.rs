@@ -74,6 +74,7 @@ pub struct HiddenConfig {
     pub j_m_centre: f64,
 }
 
+/// The default centre: the source's J_M itself.
 fn centred() -> f64 {
     1.0
 }
@@ -83,7 +84,16 @@ impl HiddenConfig {
     /// magnitudes × 2 noise levels × 2 replicates, 8 effect-free cases per noise level
     /// and 6 pairs.
     pub fn full(seed: u64) -> Self {
-        Self { seed, axis: Axis::Y, sample_dt_s: 0.01, noise_sd_mm: vec![1e-3, 3e-3], replicates: 2, zero_cases: 8, pairs: default_pairs(), j_m_centre: 1.0 }
+        Self {
+            seed,
+            axis: Axis::Y,
+            sample_dt_s: 0.01,
+            noise_sd_mm: vec![1e-3, 3e-3],
+            replicates: 2,
+            zero_cases: 8,
+            pairs: default_pairs(),
+            j_m_centre: centred(),
+        }
     }
     /// The set the tests run: 1 replicate, fewer effect-free cases and pairs.
     pub fn small(seed: u64) -> Self {
