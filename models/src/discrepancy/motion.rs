@@ -80,9 +80,10 @@ impl MotionModel {
         Self { axis, params, effects: MotionEffects::default(), offset_mm: 0.0 }
     }
 
-    /// The plant of this model.
+    /// The plant of this model, sub-stepped by the Stribeck force's change
+    /// ([`axis::SubstepRule::Force`]; the hidden sets' generator bounds the speed's).
     pub fn plant(&self) -> Result<AxisPlant, ModelError> {
-        AxisPlant::new(&self.params, self.axis, &self.effects)
+        Ok(AxisPlant::new(&self.params, self.axis, &self.effects)?.with_rule(axis::SubstepRule::Force))
     }
 
     /// Simulated axis position (mm, offset not included) at the data's times.
