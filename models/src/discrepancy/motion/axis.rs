@@ -164,14 +164,13 @@ fn drop_slope(s: f64) -> f64 {
     2.0 * s * (-s * s).exp()
 }
 
-/// Largest [`drop_slope`] on [lo, hi] (lo clipped at 0): the shape's slope rises to
-/// s = 1/√2 and falls beyond.
-fn drop_slope_within(lo: f64, hi: f64) -> f64 {
-    let lo = lo.max(0.0);
-    if lo <= std::f64::consts::FRAC_1_SQRT_2 && std::f64::consts::FRAC_1_SQRT_2 <= hi {
+/// Largest [`drop_slope`] on an interval from `lo` to beyond s = 1/√2: the shape's slope
+/// rises to 1/√2 and falls beyond, so it is the peak or the slope at `lo`.
+fn drop_slope_from(lo: f64) -> f64 {
+    if lo <= std::f64::consts::FRAC_1_SQRT_2 {
         DROP_SLOPE_MAX
     } else {
-        drop_slope(lo).max(drop_slope(hi))
+        drop_slope(lo)
     }
 }
 
@@ -279,7 +278,7 @@ impl AxisPlant {
                 // acceleration).
                 let allowed = |slope: f64| (self.resolution * DROP_SLOPE_MAX / slope).min(FORCE_RULE_CAP);
                 let first = allowed(drop_slope(s));
-                allowed(drop_slope_within(s - first, s + first))
+                allowed(drop_slope_from(s - first))
             }
         }
     }
