@@ -151,8 +151,8 @@ fn motion_verdicts_of(config: &mhidden::HiddenConfig) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 20] =
-    [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534, 7535, 7536, 7537, 7538, 7539, 7540];
+const UNTOUCHED_MOTION_SEEDS: [u64; 22] =
+    [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534, 7535, 7536, 7537, 7538, 7539, 7540, 7541, 7542];
 
 /// Untouched seeds whose sets are also drawn with the true J_M centred 30 % below and
 /// above the source's value, the workflow's prior start (issue #27, Deliver 3 and 5).
@@ -161,7 +161,7 @@ const OFF_CENTRE_MOTION_SEEDS: [u64; 2] = [7535, 7536];
 /// The criteria on sets whose true J_M is drawn around 0.7× and 1.3× the prior (the
 /// same seeds centred are in the untouched list).
 #[test]
-#[ignore = "fails the criteria on all four sets (Stribeck + belt-compliance pairs blank, as on the centred seeds; issue #27 open); figures in docs/discrepancy-domains.md; ~4.5 min in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on three of the four sets (Stribeck + belt-compliance pairs blank, a pair half-named, as on the centred seeds; issue #27 open); figures in docs/discrepancy-domains.md; ~3 min in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_drawn_off_the_prior_meets_the_criteria() {
     check_every([0.7, 1.3].into_iter().flat_map(|centre| {
         OFF_CENTRE_MOTION_SEEDS.into_iter().map(move |seed| {
@@ -172,7 +172,7 @@ fn motion_hidden_set_drawn_off_the_prior_meets_the_criteria() {
 }
 
 #[test]
-#[ignore = "fails the criteria on twelve of the twenty seeds (95.1 % named exactly over the twenty, but per seed pairs missed, cases unhalved or > 5 % wrong, mostly Stribeck + belt-compliance pairs; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~22 min for the twenty in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on ten of the twenty-two seeds (96.9 % named exactly over the twenty-two, but per seed pairs missed, cases unhalved or > 5 % wrong: Stribeck + belt-compliance pairs and weak Stribeck cases blank; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~25 min for the twenty-two in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }

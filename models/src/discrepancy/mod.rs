@@ -162,6 +162,12 @@ pub trait Domain {
     fn join(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked) -> Option<Self::Model> {
         None
     }
+    /// [`Domain::join`] with the named effect `named` replaced by its rival `rival`
+    /// (from the rival's own start): for a rival that lost to the named one only while
+    /// the masked effect was missing. `None` (the default): no such refit.
+    fn join_in_place(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked, _named: &str, _rival: &str) -> Option<Self::Model> {
+        None
+    }
     /// The effect that stands in for `effect` to first order (e.g. a dead time for a
     /// first-order lag: both delay the response by about their time), as the start
     /// [`Domain::augment`] takes in its place, seeded from `effect`'s value in `model`
@@ -515,21 +521,44 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         stopped = watch.stopped(&at.borrow(), &["joint refit", "twin check"]);
     }
     if join_due && stopped.is_none() {
-        let best = ranking
+        let ranked = ranking.as_deref().unwrap_or_default();
+        let width = |n: &str| ranked.iter().find(|r| r.name == n).map_or(1, |r| domain.fitted_parameters(n, r.coefficients.len()));
+        let named = |n: &str| effects.iter().any(|e| e.name == n);
+        // Each join as it is and with a named effect's rival (not named) in its place.
+        let swaps: Vec<Option<(usize, &str)>> = std::iter::once(None)
+            .chain(effects.iter().enumerate().flat_map(|(i, e)| domain.rivals(&e.name).iter().filter(|v| !named(v)).map(move |v| Some((i, *v)))))
+            .collect();
+        let best = ranked
             .iter()
-            .flatten()
             .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
-            .filter_map(|r| {
+            .flat_map(|r| swaps.iter().map(move |s| (r, *s)))
+            .filter_map(|(r, swap)| {
                 if watch.expired() {
                     return None;
                 }
-                announce(format!("joint refit of `{}` with the named effects", r.name));
-                let m = domain.join(&current, &start, r)?;
-                let (m, r1, d) = confirmed(domain, &y, &r_cur, m, domain.fitted_parameters(&r.name, r.coefficients.len()))?;
-                Some((r, m, r1, d))
+                let k = width(&r.name) as isize;
+                let (m, k, bar) = match swap {
+                    None => {
+                        announce(format!("joint refit of `{}` with the named effects", r.name));
+                        (domain.join(&current, &start, r)?, k, 0.0)
+                    }
+                    Some((i, rival)) => {
+                        let was = &effects[i].name;
+                        announce(format!("joint refit of `{}` with the named effects, `{rival}` in place of `{was}`", r.name));
+                        // A rival replaces a named effect only on a decisive BIC fall (as beside a join).
+                        (domain.join_in_place(&current, &start, r, was, rival)?, k + width(rival) as isize - width(was) as isize, -DECISIVE_BIC)
+                    }
+                };
+                let r1 = simulated_residual(domain, &y, &m)?;
+                let d = delta_bic(&r_cur, &r1, k);
+                (d < bar).then_some((r, swap, m, r1, d))
             })
-            .min_by(|a, b| a.3.total_cmp(&b.3));
-        if let Some((r, m, r1, d)) = best {
+            .min_by(|a, b| a.4.total_cmp(&b.4));
+        if let Some((r, swap, m, r1, d)) = best {
+            if let Some((i, rival)) = swap {
+                effects[i].evidence.insert("swapped_for_rival".into(), 1.0);
+                effects[i].name = rival.to_string();
+            }
             let mut ev = evidence(r, &r_cur, &r1, d);
             ev.insert("joined".into(), 1.0);
             effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });

@@ -272,6 +272,36 @@ pub fn chi2_sf(x: f64, k: f64) -> f64 {
     gamma_q(0.5 * k, 0.5 * x)
 }
 
+/// The x > 0 at which the decreasing `sf` equals `p` (bisection to f64 resolution).
+fn solve_decreasing(sf: impl Fn(f64) -> f64, p: f64, mut hi: f64) -> f64 {
+    let mut lo = 0.0;
+    while sf(hi) > p {
+        hi *= 2.0;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            break;
+        }
+        if sf(mid) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The z with P(|Z| > z) = `p` for a standard normal Z (P(|Z| > z) = Q(½, z²/2)).
+pub fn normal_two_sided_z(p: f64) -> f64 {
+    solve_decreasing(|z| gamma_q(0.5, 0.5 * z * z), p, 8.0)
+}
+
+/// The x with P(χ²_k > x) = `p`.
+pub fn chi2_quantile_sf(p: f64, k: f64) -> f64 {
+    solve_decreasing(|x| chi2_sf(x, k), p, k.max(1.0) * 4.0)
+}
+
 fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
     let tiny = 1e-300;
     let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
@@ -421,5 +451,18 @@ mod tests {
             .collect();
         // ρ₁ = 0.9: n·0.1/1.9 ≈ 211.
         assert!((effective_samples(&ar) / 211.0 - 1.0).abs() < 0.2, "{}", effective_samples(&ar));
+    }
+
+    #[test]
+    fn quantiles_match_the_published_tables() {
+        // Normal two-sided points (Abramowitz & Stegun, table 26.1): 1.959964 at 5 %,
+        // 2.575829 at 1 %, 3.290527 at 0.1 %. χ² lower 5 % points (ibid., table 26.8):
+        // 10.8508 for 20 degrees of freedom, 3.9403 for 10.
+        for (p, z) in [(0.05, 1.959964), (0.01, 2.575829), (0.001, 3.290527)] {
+            assert!((normal_two_sided_z(p) - z).abs() < 2e-6, "{p}: {}", normal_two_sided_z(p));
+        }
+        for (k, x) in [(20.0, 10.8508), (10.0, 3.9403)] {
+            assert!((chi2_quantile_sf(0.95, k) - x).abs() < 2e-4, "{k}: {}", chi2_quantile_sf(0.95, k));
+        }
     }
 }
