@@ -60,7 +60,8 @@ struct RunArgs {
     collinearity: f64,
     /// The measurement noise σ in the data's unit (°C, mm, mm³/s) when known from the
     /// sensor's spec or a static test (default: estimated from the data, which reads
-    /// motion at the sample rate as noise).
+    /// motion at the sample rate as noise). Motion: it also sets the band the grown
+    /// Stribeck fits must keep every reading within (default: read at the first rest).
     #[arg(long = "noise-sigma", value_name = "SIGMA")]
     noise_sigma: Option<f64>,
     /// Log format (default: by extension/content).

@@ -153,23 +153,6 @@ impl Gate {
     }
 }
 
-/// Upper `alpha` quantile of F(d1, d2), by bisection on the survival function.
-pub fn f_quantile(alpha: f64, d1: f64, d2: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    while stats::f_sf(hi, d1, d2) > alpha && hi < 1e12 {
-        hi *= 2.0;
-    }
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if stats::f_sf(mid, d1, d2) > alpha {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
-}
-
 /// Moore–Penrose inverse by an SVD bounded in iterations: `None` for a non-finite
 /// matrix or an SVD that does not converge (nalgebra's unbounded one can spin forever
 /// on a NaN, which a diverged sensitivity column can bring).
@@ -206,7 +189,7 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
     let df = (n_eff - k).max(1.0);
     let s2 = r.iter().map(|v| v * v).sum::<f64>() / (n - k).max(1.0) * (n / n_eff);
     let cov = inverse_normal(&cols) * s2;
-    let t = f_quantile(alpha, 1.0, df).sqrt();
+    let t = stats::f_quantile(alpha, 1.0, df).sqrt();
     let mut at = first;
     named
         .iter()
@@ -241,7 +224,7 @@ pub fn check<D: Domain>(domain: &D, model: &D::Model, named: &[String], y: &[f64
                 && pseudo_inverse(sub, 1e-300).is_some_and(|inv| {
                     let q = mags.len() as f64;
                     let w = (theta.transpose() * inv * &theta)[(0, 0)] / q;
-                    w.is_finite() && w > f_quantile(alpha, q, df)
+                    w.is_finite() && w > stats::f_quantile(alpha, q, df)
                 });
             Gate {
                 contribution_rms,
@@ -281,14 +264,6 @@ pub fn sensitivity(value: f64, floor: f64, sim: impl Fn(f64) -> Vec<f64>, base: 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn f_quantiles_match_published_tables() {
-        // F(1, 10) 5 %: 4.965; F(2, 20) 1 %: 5.849 (Pearson & Hartley tables); t(∞) 2.5 % two-sided = 1.96.
-        assert!((f_quantile(0.05, 1.0, 10.0) - 4.9646).abs() < 1e-3);
-        assert!((f_quantile(0.01, 2.0, 20.0) - 5.849).abs() < 2e-3);
-        assert!((f_quantile(0.05, 1.0, 1e7).sqrt() - 1.95996).abs() < 1e-3);
-    }
 
     #[test]
     fn a_non_finite_normal_matrix_has_no_inverse_instead_of_a_hang() {

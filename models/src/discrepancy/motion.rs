@@ -84,9 +84,23 @@ impl MotionData {
             return GROW_THRESHOLD * super::stats::noise_sigma(&self.meas_mm);
         };
         let k = (rest - 1) as f64;
-        let upper = sd * (k / super::stats::chi2_quantile_sf(0.95, k)).sqrt();
+        self.miss_band_of(sd * (k / super::stats::chi2_quantile_sf(0.95, k)).sqrt())
+    }
+
+    /// [`Self::miss_band`] for a sensor whose σ (mm) is known (its spec or a static
+    /// test, `--noise-sigma`): σ times the Šidák point of n readings at [`BAND_RISK`].
+    pub fn miss_band_of(&self, sigma: f64) -> f64 {
         let per_sample = 1.0 - (1.0 - BAND_RISK).powf(1.0 / self.meas_mm.len() as f64);
-        upper * super::stats::normal_two_sided_z(per_sample)
+        sigma * super::stats::normal_two_sided_z(per_sample)
+    }
+
+    /// The first reading in `span` that the simulated `y` misses by more than `band` (mm;
+    /// a non-finite value misses; `span` ends where `y` or the readings do).
+    fn first_miss(&self, y: &[f64], band: f64, span: std::ops::Range<usize>) -> Option<usize> {
+        (span.start..span.end.min(y.len()).min(self.meas_mm.len())).find(|&k| {
+            let miss = (y[k] - self.meas_mm[k]).abs();
+            miss.is_nan() || miss > band
+        })
     }
 
     /// Equal lengths, at least [`MIN_SAMPLES`] samples, strictly increasing finite time.
@@ -424,9 +438,9 @@ const GROW_PATIENCE: usize = 15;
 /// F_s already decorrelates the trajectory, so a fit over the whole record stays where
 /// it starts. The fit starts on the first [`GROW_FIRST`] samples; the fitted model is
 /// then simulated over the whole record, the horizon extended to [`GROW_STEP`] samples
-/// past the first sample it misses by more than the data's [`MotionData::miss_band`]
-/// (read from the sensor at rest), and refitted from the last estimate, until it covers
-/// the record.
+/// past the first sample it misses by more than `band` (mm: the data's
+/// [`MotionData::miss_band`], read from the sensor at rest, or a known σ's), and
+/// refitted from the last estimate, until it covers the record.
 /// Where a fit still misses a sample of its own horizon (a new stick it cannot reach by
 /// its local steps), the Stribeck level and velocity are scanned on nested grids
 /// ([`scan_stribeck`]) and the fit restarted from the best point, kept if better. If
@@ -438,15 +452,19 @@ const GROW_PATIENCE: usize = 15;
 /// again from the first's estimate, kept if better: on the development seed's 10 N
 /// case it lands at the truth's residual where the first pass stops at 15–19 µm.
 /// After `deadline` (if any) it fails instead of fitting the next horizon.
-pub fn identify_grown(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], deadline: Option<Instant>) -> Result<MotionModel, ModelError> {
+pub fn identify_grown(
+    data: &MotionData,
+    model: &MotionModel,
+    effects: &[MotionEffect],
+    band: f64,
+    deadline: Option<Instant>,
+) -> Result<MotionModel, ModelError> {
     let n = data.t_s.len();
     if !effects.contains(&MotionEffect::Stribeck) || n <= GROW_FIRST {
         return identify(data, model, effects);
     }
-    let band = data.miss_band();
     let first = grow(data, model, effects, band, deadline)?;
-    let y = first.predict_mm(data)?;
-    if y.iter().zip(&data.meas_mm).all(|(a, b)| (a - b).abs() <= band) {
+    if data.first_miss(&first.predict_mm(data)?, band, 0..n).is_none() {
         return Ok(first);
     }
     // Still missing samples: a second pass from the first's estimate, kept if better.
@@ -473,7 +491,7 @@ fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: 
         let patience = if horizon == n { simfit::PATIENCE } else { GROW_PATIENCE };
         m = identify_within(&part, &m, effects, patience)?;
         let mut y = m.predict_mm(data)?;
-        let misses = |y: &[f64]| y[..horizon].iter().zip(&part.meas_mm).any(|(a, b)| (a - b).abs() > band);
+        let misses = |y: &[f64]| data.first_miss(y, band, 0..horizon).is_some();
         if !stuck && misses(&y) {
             // The fit leaves samples it should explain: it is outside the horizon's
             // basin. Scan the Stribeck parameters, refit from the best, keep it if better.
@@ -490,7 +508,7 @@ fn grow(data: &MotionData, model: &MotionModel, effects: &[MotionEffect], band: 
         horizon = if stuck {
             n
         } else {
-            let missed = (horizon..n).find(|&k| (y[k] - data.meas_mm[k]).abs() > band).unwrap_or(n);
+            let missed = data.first_miss(&y, band, horizon..n).unwrap_or(n);
             (missed + GROW_STEP).max(horizon + GROW_STEP).min(n)
         };
     }
@@ -556,6 +574,8 @@ fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<MotionModel, 
     }
     let mut best = (output_sse(data, &start)?, start);
     let grid: Vec<(i32, i32)> = (-SCAN_STEPS..=SCAN_STEPS).flat_map(|i| (-SCAN_STEPS..=SCAN_STEPS).map(move |j| (i, j))).collect();
+    let mut nearest_first: Vec<usize> = (0..grid.len()).collect();
+    nearest_first.sort_by_key(|&k| grid[k].0.pow(2) + grid[k].1.pow(2));
     for (ds, dv) in SCAN_GRIDS {
         let centre = best.1;
         // The least error found so far (a non-negative f64's bits order as its value):
@@ -563,16 +583,21 @@ fn scan_stribeck(data: &MotionData, model: &MotionModel) -> Result<MotionModel, 
         // exhaustive one would (it keeps the strictly least error: a stopped point is
         // strictly worse than one evaluated; another pick rule would need another bound).
         let least = AtomicU64::new(best.0.to_bits());
-        // Every point on every core; the best taken in grid order (first of equals).
-        let points = crate::parallel::par_map(&grid, |&(i, j)| {
+        // Every point on every core, nearest the centre first (the least error falls
+        // sooner, so more points stop early); the best taken in grid order (first of equals).
+        let mut points = crate::parallel::par_map(&nearest_first, |&k| {
+            let (i, j) = grid[k];
             let mut m = centre;
             m.effects.stribeck_n = centre.effects.stribeck_n * 2f64.powf(i as f64 * ds);
             m.effects.stribeck_v_m_s = centre.effects.stribeck_v_m_s * 2f64.powf(j as f64 * dv);
-            let sse = output_sse_below(data, &m, f64::from_bits(least.load(Ordering::Relaxed)))?;
-            least.fetch_min(sse.to_bits(), Ordering::Relaxed);
-            Ok((sse, m))
+            let sse = output_sse_below(data, &m, f64::from_bits(least.load(Ordering::Relaxed)));
+            if let Ok(sse) = sse {
+                least.fetch_min(sse.to_bits(), Ordering::Relaxed);
+            }
+            (k, sse.map(|sse| (sse, m)))
         });
-        for point in points {
+        points.sort_unstable_by_key(|p| p.0);
+        for (_, point) in points {
             let (sse, m) = point?;
             if sse < best.0 {
                 best = (sse, m);
@@ -615,22 +640,31 @@ pub struct MotionDomain {
     data: MotionData,
     /// When grown fits stop ([`identify_grown`]).
     deadline: Option<Instant>,
+    /// Half-width (mm) of the readings a model must keep within to explain them: the
+    /// data's [`MotionData::miss_band`], or [`MotionData::miss_band_of`] a given σ.
+    band: f64,
     /// The slow spans compared by their statistics ([`stick_slip::slow_spans`]).
     spans: Vec<(usize, usize)>,
 }
 
 impl MotionDomain {
-    /// Check the data and hold them.
-    pub fn new(data: MotionData) -> Result<Self, ModelError> {
+    /// Check the data and hold them; `sensor_sigma` (mm), where known, sets the miss
+    /// band instead of the σ read from the data's rest.
+    pub fn new(data: MotionData, sensor_sigma: Option<f64>) -> Result<Self, ModelError> {
         data.check()?;
         let spans = stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
-        Ok(Self { data, deadline: None, spans })
+        let band = sensor_sigma.map_or_else(|| data.miss_band(), |s| data.miss_band_of(s));
+        Ok(Self { data, deadline: None, band, spans })
     }
 
-    /// Whether every reading lies within the data's [`MotionData::miss_band`] of `model`'s.
+    /// The half-width (mm) every reading must keep within to be explained.
+    pub fn band(&self) -> f64 {
+        self.band
+    }
+
+    /// Whether every reading lies within the domain's band of `model`'s.
     fn explains(&self, model: &MotionModel) -> bool {
-        let band = self.data.miss_band();
-        model.predict_mm(&self.data).is_ok_and(|y| y.iter().zip(&self.data.meas_mm).all(|(a, b)| (a - b).abs() <= band))
+        model.predict_mm(&self.data).is_ok_and(|y| self.data.first_miss(&y, self.band, 0..y.len()).is_none())
     }
 }
 
@@ -745,7 +779,7 @@ impl Domain for MotionDomain {
             // first samples would only repeat the Stribeck search (seconds a case).
             identify(&self.data, &seeded, &effects)
         } else {
-            identify_grown(&self.data, &seeded, &effects, self.deadline)
+            identify_grown(&self.data, &seeded, &effects, self.band, self.deadline)
         }
     }
     fn refit_contribution(&self) -> bool {
@@ -779,7 +813,7 @@ impl Domain for MotionDomain {
         }
         seeded.effects.stribeck_v_m_s = current.effects.stribeck_v_m_s;
         if !named.contains(&MotionEffect::Stribeck) {
-            let held = identify_grown(&self.data, &seeded, &named, self.deadline).ok()?;
+            let held = identify_grown(&self.data, &seeded, &named, self.band, self.deadline).ok()?;
             named.push(e);
             return identify(&self.data, &held, &named).ok();
         }
@@ -788,12 +822,12 @@ impl Domain for MotionDomain {
         // start: a compliance held at its lone fit (J_M and it 1–4 % off) leaves the
         // stick–slip out of reach (docs/discrepancy-domains.md).
         named.push(e);
-        let from_fit = identify_grown(&self.data, &seeded, &named, self.deadline).ok()?;
+        let from_fit = identify_grown(&self.data, &seeded, &named, self.band, self.deadline).ok()?;
         let afresh = stribeck_start(&seeded);
         if self.explains(&from_fit) || afresh == seeded {
             return Some(from_fit);
         }
-        let Ok(fresh) = identify_grown(&self.data, &afresh, &named, self.deadline) else {
+        let Ok(fresh) = identify_grown(&self.data, &afresh, &named, self.band, self.deadline) else {
             return Some(from_fit);
         };
         let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
@@ -827,7 +861,7 @@ impl Domain for MotionDomain {
 /// The workflow on motion data, from `model` if given, else from the base model.
 /// A grown Stribeck fit (the slow part) also stops at `watch`'s time limit.
 pub fn discrepancy(data: MotionData, model: Option<MotionModel>, opts: &ValidSelectOptions, watch: &super::Watch) -> Result<Outcome<MotionModel>, ModelError> {
-    let domain = MotionDomain { deadline: watch.deadline(), ..MotionDomain::new(data)? };
+    let domain = MotionDomain { deadline: watch.deadline(), ..MotionDomain::new(data, opts.noise_sigma())? };
     super::run(&domain, model, opts, watch)
 }
 
@@ -853,7 +887,7 @@ mod tests {
         let rms_um = |m: &MotionModel| crate::metrics::rms(&d.meas_mm, &m.predict_mm(d).expect("simulate")) * 1e3;
         let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.005 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
         let whole = identify(d, &start, &[MotionEffect::Stribeck]).expect("fit");
-        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck], None).expect("fit");
+        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck], d.miss_band(), None).expect("fit");
         let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s, {} µm RMS (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s, rms_um(m));
         assert!(!near(&whole) && rms_um(&whole) > 2.0, "whole-record fit: {}", show(&whole));
         assert!(near(&grown) && rms_um(&grown) < 1.25, "grown fit: {}", show(&grown));
@@ -930,7 +964,7 @@ mod tests {
         let case = cases.iter().find(|c| c.answer.id == "stribeck-m2-n1um-0").expect("case");
         let mut start = MotionModel::base(case.data.axis);
         start.effects.stribeck_n = 2.0;
-        let err = identify_grown(&case.data, &start, &[MotionEffect::Stribeck], Some(Instant::now())).expect_err("past deadline");
+        let err = identify_grown(&case.data, &start, &[MotionEffect::Stribeck], case.data.miss_band(), Some(Instant::now())).expect_err("past deadline");
         assert!(err.to_string().contains(&format!("time limit reached growing the Stribeck fit at {GROW_FIRST} of")), "{err}");
         let stages = std::sync::Mutex::new(Vec::<String>::new());
         let log = |s: &str| stages.lock().expect("log").push(s.to_string());
@@ -959,7 +993,7 @@ mod tests {
         let cases = hidden::generate(&config).expect("generate");
         let case = cases.iter().find(|c| c.answer.effects.len() == 2).expect("pair");
         let truth = |name: &str| case.answer.effects.iter().find_map(|e| e.parameters.get(name)).copied().expect(name);
-        let domain = MotionDomain::new(case.data.clone()).expect("data");
+        let domain = MotionDomain::new(case.data.clone(), None).expect("data");
         let base = domain.fit_base().expect("base");
         let mut current = base;
         current.effects.stribeck_n = 2.0;
@@ -1009,7 +1043,12 @@ mod tests {
         // And the band is not a blanket: under 6 σ on average (4.2 σ for a known σ).
         let (t_s, cmd_mm) = hidden::protocol(0.01).expect("protocol");
         let sensor = crate::hbot::sensor::LaserSensor { sample_dt_s: 0.01, noise_sd_m: 3e-6, resolution_m: 1e-6 };
-        let (mut missed, mut widths) = (0, 0.0);
+        // Given the laser's σ (√(σ² + q²/12), `--noise-sigma`), the band is that σ times the
+        // Šidák point, so some reading leaves it in 1 % of the records; the 1 µm steps
+        // make it 1.26 % (a reading ≥ 13 µm is an underlying one ≥ 12.5 µm, 4.17 σ, not
+        // 4.23 σ): 25 ± 5 of 2,000, so between 0.5 % and 2 % (3 standard errors).
+        let known = (9e-6f64 + 1e-6 / 12.0).sqrt();
+        let (mut missed, mut missed_known, mut widths) = (0, 0, 0.0);
         let trials = 2000;
         for k in 0..trials {
             let read = sensor.read(&vec![0.0; t_s.len()], &mut crate::rng::seeded(91, k)).expect("read");
@@ -1017,9 +1056,13 @@ mod tests {
             let band = data.miss_band();
             widths += band / 3e-3;
             missed += usize::from(data.meas_mm.iter().any(|y| y.abs() > band));
+            let given = MotionDomain::new(data.clone(), Some(known)).expect("domain").band();
+            missed_known += usize::from(data.meas_mm.iter().any(|y| y.abs() > given));
         }
         let rate = missed as f64 / trials as f64;
         assert!(rate <= 0.02, "{missed} of {trials} records leave the band");
         assert!(widths / (trials as f64) < 6.0, "mean band {} σ", widths / trials as f64);
+        let rate_known = missed_known as f64 / trials as f64;
+        assert!((0.005..=0.02).contains(&rate_known), "{missed_known} of {trials} records leave the known σ's band");
     }
 }

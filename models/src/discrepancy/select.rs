@@ -68,7 +68,8 @@ pub struct SelectOptions {
     /// The measurement noise σ in the data's unit when it is known (a sensor's spec, a
     /// static test): the scale of the noise band. `None`: estimated from the data
     /// ([`super::stats::noise_sigma`]), which reads a signal with content at the
-    /// sample rate as noise (1.2–6× the sensor's σ on the motion hidden set).
+    /// sample rate as noise (1.2–6× the sensor's σ on the motion hidden set). Motion
+    /// also sizes its miss band by it ([`super::motion::MotionData::miss_band_of`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub noise_sigma: Option<f64>,
 }

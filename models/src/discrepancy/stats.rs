@@ -272,10 +272,11 @@ pub fn chi2_sf(x: f64, k: f64) -> f64 {
     gamma_q(0.5 * k, 0.5 * x)
 }
 
-/// The x > 0 at which the decreasing `sf` equals `p` (bisection to f64 resolution).
+/// The x > 0 at which the decreasing `sf` equals `p` (bisection to f64 resolution;
+/// the bracket grows from `hi` up to 10¹²).
 fn solve_decreasing(sf: impl Fn(f64) -> f64, p: f64, mut hi: f64) -> f64 {
     let mut lo = 0.0;
-    while sf(hi) > p {
+    while sf(hi) > p && hi < 1e12 {
         hi *= 2.0;
     }
     for _ in 0..200 {
@@ -300,6 +301,11 @@ pub fn normal_two_sided_z(p: f64) -> f64 {
 /// The x with P(χ²_k > x) = `p`.
 pub fn chi2_quantile_sf(p: f64, k: f64) -> f64 {
     solve_decreasing(|x| chi2_sf(x, k), p, k.max(1.0) * 4.0)
+}
+
+/// Upper `alpha` quantile of F(d1, d2).
+pub fn f_quantile(alpha: f64, d1: f64, d2: f64) -> f64 {
+    solve_decreasing(|x| f_sf(x, d1, d2), alpha, 1.0)
 }
 
 fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
@@ -451,6 +457,14 @@ mod tests {
             .collect();
         // ρ₁ = 0.9: n·0.1/1.9 ≈ 211.
         assert!((effective_samples(&ar) / 211.0 - 1.0).abs() < 0.2, "{}", effective_samples(&ar));
+    }
+
+    #[test]
+    fn f_quantiles_match_published_tables() {
+        // F(1, 10) 5 %: 4.965; F(2, 20) 1 %: 5.849 (Pearson & Hartley tables); t(∞) 2.5 % two-sided = 1.96.
+        assert!((f_quantile(0.05, 1.0, 10.0) - 4.9646).abs() < 1e-3);
+        assert!((f_quantile(0.01, 2.0, 20.0) - 5.849).abs() < 2e-3);
+        assert!((f_quantile(0.05, 1.0, 1e7).sqrt() - 1.95996).abs() < 1e-3);
     }
 
     #[test]
