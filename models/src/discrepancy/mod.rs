@@ -430,7 +430,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
                 return None;
             }
             announce(format!("round {number}: refitting `{}`", r.name));
-            confirmed(domain, &y, &r_cur, domain.augment(&current, r).ok()?, width(&r.name))
+            confirmed(domain, &y, &r_cur, domain.augment(&current, r).ok()?, width(&r.name) as isize, 0.0)
         };
         if let Some(best) = sel.chosen.first() {
             // ERR ranks effects linearised at a small probe; for effects nonlinear in
@@ -522,7 +522,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     }
     if join_due && stopped.is_none() {
         let ranked = ranking.as_deref().unwrap_or_default();
-        let width = |n: &str| ranked.iter().find(|r| r.name == n).map_or(1, |r| domain.fitted_parameters(n, r.coefficients.len()));
+        let width = |n: &str| ranked_width(domain, ranked, n);
         let named = |n: &str| effects.iter().any(|e| e.name == n);
         // Each join as it is and with a named effect's rival (not named) in its place.
         let swaps: Vec<Option<(usize, &str)>> = std::iter::once(None)
@@ -536,7 +536,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
                 if watch.expired() {
                     return None;
                 }
-                let k = width(&r.name) as isize;
+                let k = width(&r.name);
                 let (m, k, bar) = match swap {
                     None => {
                         announce(format!("joint refit of `{}` with the named effects", r.name));
@@ -546,12 +546,11 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
                         let was = &effects[i].name;
                         announce(format!("joint refit of `{}` with the named effects, `{rival}` in place of `{was}`", r.name));
                         // A rival replaces a named effect only on a decisive BIC fall (as beside a join).
-                        (domain.join_in_place(&current, &start, r, was, rival)?, k + width(rival) as isize - width(was) as isize, -DECISIVE_BIC)
+                        (domain.join_in_place(&current, &start, r, was, rival)?, k + width(rival) - width(was), -DECISIVE_BIC)
                     }
                 };
-                let r1 = simulated_residual(domain, &y, &m)?;
-                let d = delta_bic(&r_cur, &r1, k);
-                (d < bar).then_some((r, swap, m, r1, d))
+                let (m, r1, d) = confirmed(domain, &y, &r_cur, m, k, bar)?;
+                Some((r, swap, m, r1, d))
             })
             .min_by(|a, b| a.4.total_cmp(&b.4));
         if let Some((r, swap, m, r1, d)) = best {
@@ -707,20 +706,18 @@ fn refit_rivals_beside<D: Domain>(
         if rivals.is_empty() {
             continue;
         }
-        let width = |n: &str| ranking.iter().find(|r| r.name == n).map_or(1, |r| domain.fitted_parameters(n, r.coefficients.len()));
         let others: Vec<&str> = effects.iter().map(|e| e.name.as_str()).filter(|n| *n != name).collect();
         let mut best: Option<(String, D::Model, Vec<f64>, f64)> = None;
         for r in ranking.iter().filter(|r| r.name == name || (rivals.contains(&r.name.as_str()) && !others.contains(&r.name.as_str()))) {
             if !go(&r.name) {
                 return;
             }
-            let Some((m, r1)) = domain.augment(&domain.without(current, &name), r).ok().and_then(|m| simulated_residual(domain, y, &m).map(|r1| (m, r1)))
-            else {
+            let k = ranked_width(domain, ranking, &r.name) - ranked_width(domain, ranking, &name);
+            let bar = if r.name == name { 0.0 } else { -DECISIVE_BIC };
+            let Some((m, r1, d)) = domain.augment(&domain.without(current, &name), r).ok().and_then(|m| confirmed(domain, y, r_cur, m, k, bar)) else {
                 continue;
             };
-            let d = delta_bic(r_cur, &r1, width(&r.name) as isize - width(&name) as isize);
-            let bar = if r.name == name { 0.0 } else { -DECISIVE_BIC };
-            if d < bar && best.as_ref().is_none_or(|b| d < b.3) {
+            if best.as_ref().is_none_or(|b| d < b.3) {
                 best = Some((r.name.clone(), m, r1, d));
             }
         }
@@ -743,11 +740,17 @@ fn simulated_residual<D: Domain>(domain: &D, y: &[f64], model: &D::Model) -> Opt
 }
 
 /// `model` with its residual on `y` and BIC change from `r0` (`k` parameters added),
-/// if its simulation is finite and the BIC falls: a refit that confirms an effect.
-fn confirmed<D: Domain>(domain: &D, y: &[f64], r0: &[f64], model: D::Model, k: usize) -> Option<(D::Model, Vec<f64>, f64)> {
+/// if its simulation is finite and the BIC change is below `bar` (0: it falls; a
+/// rival replacing a named effect needs `-DECISIVE_BIC`): a refit that confirms it.
+fn confirmed<D: Domain>(domain: &D, y: &[f64], r0: &[f64], model: D::Model, k: isize, bar: f64) -> Option<(D::Model, Vec<f64>, f64)> {
     let r1 = simulated_residual(domain, y, &model)?;
-    let d = delta_bic(r0, &r1, k as isize);
-    (d < 0.0).then_some((model, r1, d))
+    let d = delta_bic(r0, &r1, k);
+    (d < bar).then_some((model, r1, d))
+}
+
+/// Parameters `name` fits, by its columns in `ranking` (1 if it is not ranked).
+fn ranked_width<D: Domain>(domain: &D, ranking: &[Ranked], name: &str) -> isize {
+    ranking.iter().find(|r| r.name == name).map_or(1, |r| domain.fitted_parameters(name, r.coefficients.len())) as isize
 }
 
 /// Evidence of an effect: its selection round (`r`) and its nonlinear refit, which
