@@ -52,6 +52,15 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
             p_text(r.after.whiteness_p)
         )
     });
+    if let Some(b) = &r.miss_band {
+        doc.paragraph(format!(
+            "A stick–slip fit counts as explaining the record when it keeps every reading within ±{} {unit}: {}× σ = {} {unit}, {}.",
+            num(b.half_width, 3),
+            num(b.half_width / b.sigma, 3),
+            num(b.sigma, 3),
+            b.sigma_from.describe()
+        ));
+    }
     if r.gap_differs() {
         doc.paragraph(format!(
             "Where the axis may stick–slip (slow moves and the rests after them) a trajectory's phase is chaotic, so there the gate compares the lag's mean and spread, not samples: by that measure the gap is {} → {} {unit} ({} % lower).",
@@ -167,7 +176,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
 mod tests {
     use super::*;
     use fdmlab_models::discrepancy::stats::Window;
-    use fdmlab_models::discrepancy::{Effect, Metrics, Outcome, Ranked, Unexplained};
+    use fdmlab_models::discrepancy::{Effect, Metrics, MissBand, Outcome, Ranked, SigmaSource, Unexplained};
     use std::collections::BTreeMap;
 
     #[test]
@@ -190,6 +199,7 @@ mod tests {
                 not_significant: vec![],
                 unexplained: Some(Unexplained { rms: 0.5, rms_to_noise: 5.0 / 3.0, windows: vec![Window { start_s: 40.0, end_s: 55.0 }] }),
                 stopped: None,
+                miss_band: None,
             },
             ranking: vec![Ranked { name: "fan_cooling".into(), err: 0.9, p_value: 1e-20, delta_bic: -500.0, coefficients: vec![0.001] }],
             unit: "°C".into(),
@@ -211,5 +221,11 @@ mod tests {
         assert!(md.contains("`fan_cooling`"));
         // 0.5 °C over σ = 0.3 °C; one window 40–55 s.
         assert!(md.contains("RMS 0.5000 °C, 1.67× the noise σ) still leaves the noise band in 1 window(s): 40.00–55.00 s"), "{md}");
+        assert!(!md.contains("stick–slip fit"), "{md}");
+        // A grown fit's band: 1.2 over σ = 0.3 is 4×.
+        let mut o = o;
+        o.report.miss_band = Some(MissBand { half_width: 1.2, sigma: 0.3, sigma_from: SigmaSource::Given });
+        let md = report("motion", "axis.csv", &o).to_markdown();
+        assert!(md.contains("within ±1.20 °C: 4.00× σ = 0.300 °C, the σ given."), "{md}");
     }
 }

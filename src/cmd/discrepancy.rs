@@ -263,6 +263,15 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         if r.gap_differs() {
             s.push_str(&format!("gap with stick–slip spans by their statistics: {:.4} → {:.4}\n", r.before.gap_rms, r.after.gap_rms));
         }
+        if let Some(b) = &r.miss_band {
+            s.push_str(&format!(
+                "stick–slip fits kept within ±{:.4e} of every reading ({:.2}× σ {:.3e}, {})\n",
+                b.half_width,
+                b.half_width / b.sigma,
+                b.sigma,
+                b.sigma_from.describe()
+            ));
+        }
         s
     });
     Ok(())

@@ -186,6 +186,12 @@ pub trait Domain {
     fn gap_rms(&self, a: &[f64], b: &[f64]) -> f64 {
         stats::rms(&residual(a, b))
     }
+    /// The band within which a fit grown over the record must keep every reading to
+    /// count as explaining it ([`Report::miss_band`]); `None` (the default): the domain
+    /// grows no fit.
+    fn miss_band(&self) -> Option<MissBand> {
+        None
+    }
 }
 
 /// Fit, RMS and whiteness of one model on the data.
@@ -299,6 +305,48 @@ pub struct Report {
     /// when the run finished within it ([`watch`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stopped: Option<Stopped>,
+    /// The band every reading must keep within for a grown fit to count as explaining
+    /// the record ([`Domain::miss_band`]: motion's stick–slip fits); absent where the
+    /// domain grows no fit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub miss_band: Option<MissBand>,
+}
+
+/// The band within which a fit grown over the record must keep every reading.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissBand {
+    /// Half-width, data unit.
+    #[serde(with = "nonfinite::scalar")]
+    pub half_width: f64,
+    /// The noise σ it is a multiple of, data unit.
+    #[serde(with = "nonfinite::scalar")]
+    pub sigma: f64,
+    /// Where that σ comes from.
+    pub sigma_from: SigmaSource,
+}
+
+/// Where a [`MissBand`]'s σ comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SigmaSource {
+    /// Given by the user (`--noise-sigma`).
+    Given,
+    /// The readings before the first move (the sensor alone), at their σ's upper 95 % bound.
+    Rest,
+    /// Estimated from the whole record (no rest to read).
+    Record,
+}
+
+impl SigmaSource {
+    /// A phrase for reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            SigmaSource::Given => "the σ given",
+            SigmaSource::Rest => "the σ of the readings before the first move, at its upper 95 % bound",
+            SigmaSource::Record => "the σ estimated from the whole record (no rest before the first move to read)",
+        }
+    }
 }
 
 impl Report {
@@ -620,6 +668,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         not_significant,
         unexplained,
         stopped,
+        miss_band: domain.miss_band(),
     };
     Ok(Outcome {
         ranking: ranking.unwrap_or_default(),

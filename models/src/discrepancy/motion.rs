@@ -18,7 +18,7 @@ pub mod mismatch;
 pub mod stick_slip;
 
 use super::simfit;
-use super::{Candidate, Domain, Outcome, Ranked, ValidSelectOptions};
+use super::{Candidate, Domain, MissBand, Outcome, Ranked, SigmaSource, ValidSelectOptions};
 use crate::hbot::ident::Axis;
 use crate::hbot::HbotParams;
 use crate::ModelError;
@@ -79,12 +79,14 @@ impl MotionData {
     /// that no one of n readings crosses at that risk (Šidák; 4.2 at 411 readings).
     /// Where the record has no rest to read, [`GROW_THRESHOLD`]× the whole record's σ
     /// estimate (which reads the motion too, so is wider still).
-    pub fn miss_band(&self) -> f64 {
+    pub fn miss_band(&self) -> MissBand {
         let Some((sd, rest)) = self.rest_sigma() else {
-            return GROW_THRESHOLD * super::stats::noise_sigma(&self.meas_mm);
+            let sigma = super::stats::noise_sigma(&self.meas_mm);
+            return MissBand { half_width: GROW_THRESHOLD * sigma, sigma, sigma_from: SigmaSource::Record };
         };
         let k = (rest - 1) as f64;
-        self.miss_band_of(sd * (k / super::stats::chi2_quantile_sf(0.95, k)).sqrt())
+        let sigma = sd * (k / super::stats::chi2_quantile_sf(0.95, k)).sqrt();
+        MissBand { half_width: self.miss_band_of(sigma), sigma, sigma_from: SigmaSource::Rest }
     }
 
     /// [`Self::miss_band`] for a sensor whose σ (mm) is known (its spec or a static
@@ -640,9 +642,9 @@ pub struct MotionDomain {
     data: MotionData,
     /// When grown fits stop ([`identify_grown`]).
     deadline: Option<Instant>,
-    /// Half-width (mm) of the readings a model must keep within to explain them: the
+    /// The band (mm) a model must keep every reading within to explain them: the
     /// data's [`MotionData::miss_band`], or [`MotionData::miss_band_of`] a given σ.
-    band: f64,
+    band: MissBand,
     /// The slow spans compared by their statistics ([`stick_slip::slow_spans`]).
     spans: Vec<(usize, usize)>,
 }
@@ -653,18 +655,13 @@ impl MotionDomain {
     pub fn new(data: MotionData, sensor_sigma: Option<f64>) -> Result<Self, ModelError> {
         data.check()?;
         let spans = stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
-        let band = sensor_sigma.map_or_else(|| data.miss_band(), |s| data.miss_band_of(s));
+        let band = sensor_sigma.map_or_else(|| data.miss_band(), |s| MissBand { half_width: data.miss_band_of(s), sigma: s, sigma_from: SigmaSource::Given });
         Ok(Self { data, deadline: None, band, spans })
-    }
-
-    /// The half-width (mm) every reading must keep within to be explained.
-    pub fn band(&self) -> f64 {
-        self.band
     }
 
     /// Whether every reading lies within the domain's band of `model`'s.
     fn explains(&self, model: &MotionModel) -> bool {
-        model.predict_mm(&self.data).is_ok_and(|y| self.data.first_miss(&y, self.band, 0..y.len()).is_none())
+        model.predict_mm(&self.data).is_ok_and(|y| self.data.first_miss(&y, self.band.half_width, 0..y.len()).is_none())
     }
 }
 
@@ -694,6 +691,9 @@ impl Domain for MotionDomain {
     }
     fn gap_rms(&self, a: &[f64], b: &[f64]) -> f64 {
         stick_slip::statistics_gap_rms(&self.spans, &self.data.cmd_mm, a, b)
+    }
+    fn miss_band(&self) -> Option<MissBand> {
+        Some(self.band)
     }
     fn base_columns(&self, model: &MotionModel) -> Vec<Vec<f64>> {
         let Ok(raw) = model.simulate_mm(&self.data) else {
@@ -779,7 +779,7 @@ impl Domain for MotionDomain {
             // first samples would only repeat the Stribeck search (seconds a case).
             identify(&self.data, &seeded, &effects)
         } else {
-            identify_grown(&self.data, &seeded, &effects, self.band, self.deadline)
+            identify_grown(&self.data, &seeded, &effects, self.band.half_width, self.deadline)
         }
     }
     fn refit_contribution(&self) -> bool {
@@ -813,7 +813,7 @@ impl Domain for MotionDomain {
         }
         seeded.effects.stribeck_v_m_s = current.effects.stribeck_v_m_s;
         if !named.contains(&MotionEffect::Stribeck) {
-            let held = identify_grown(&self.data, &seeded, &named, self.band, self.deadline).ok()?;
+            let held = identify_grown(&self.data, &seeded, &named, self.band.half_width, self.deadline).ok()?;
             named.push(e);
             return identify(&self.data, &held, &named).ok();
         }
@@ -822,12 +822,12 @@ impl Domain for MotionDomain {
         // start: a compliance held at its lone fit (J_M and it 1–4 % off) leaves the
         // stick–slip out of reach (docs/discrepancy-domains.md).
         named.push(e);
-        let from_fit = identify_grown(&self.data, &seeded, &named, self.band, self.deadline).ok()?;
+        let from_fit = identify_grown(&self.data, &seeded, &named, self.band.half_width, self.deadline).ok()?;
         let afresh = stribeck_start(&seeded);
         if self.explains(&from_fit) || afresh == seeded {
             return Some(from_fit);
         }
-        let Ok(fresh) = identify_grown(&self.data, &afresh, &named, self.band, self.deadline) else {
+        let Ok(fresh) = identify_grown(&self.data, &afresh, &named, self.band.half_width, self.deadline) else {
             return Some(from_fit);
         };
         let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
@@ -887,7 +887,7 @@ mod tests {
         let rms_um = |m: &MotionModel| crate::metrics::rms(&d.meas_mm, &m.predict_mm(d).expect("simulate")) * 1e3;
         let near = |m: &MotionModel| (m.effects.stribeck_n / fs0 - 1.0).abs() < 0.005 && (m.effects.stribeck_v_m_s / vs0 - 1.0).abs() < 0.05;
         let whole = identify(d, &start, &[MotionEffect::Stribeck]).expect("fit");
-        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck], d.miss_band(), None).expect("fit");
+        let grown = identify_grown(d, &start, &[MotionEffect::Stribeck], d.miss_band().half_width, None).expect("fit");
         let show = |m: &MotionModel| format!("F_s {} N, v_s {} m/s, {} µm RMS (truth {fs0}, {vs0})", m.effects.stribeck_n, m.effects.stribeck_v_m_s, rms_um(m));
         assert!(!near(&whole) && rms_um(&whole) > 2.0, "whole-record fit: {}", show(&whole));
         assert!(near(&grown) && rms_um(&grown) < 1.25, "grown fit: {}", show(&grown));
@@ -964,7 +964,8 @@ mod tests {
         let case = cases.iter().find(|c| c.answer.id == "stribeck-m2-n1um-0").expect("case");
         let mut start = MotionModel::base(case.data.axis);
         start.effects.stribeck_n = 2.0;
-        let err = identify_grown(&case.data, &start, &[MotionEffect::Stribeck], case.data.miss_band(), Some(Instant::now())).expect_err("past deadline");
+        let err =
+            identify_grown(&case.data, &start, &[MotionEffect::Stribeck], case.data.miss_band().half_width, Some(Instant::now())).expect_err("past deadline");
         assert!(err.to_string().contains(&format!("time limit reached growing the Stribeck fit at {GROW_FIRST} of")), "{err}");
         let stages = std::sync::Mutex::new(Vec::<String>::new());
         let log = |s: &str| stages.lock().expect("log").push(s.to_string());
@@ -1030,7 +1031,8 @@ mod tests {
         // A record that moves from its first sample has no rest to read: the whole record's estimate.
         let moving = MotionData { cmd_mm: pair.cmd_mm.iter().enumerate().map(|(i, c)| c + i as f64 * 1e-6).collect(), ..pair.clone() };
         assert_eq!(moving.sensor_sigma(), crate::discrepancy::stats::noise_sigma(&moving.meas_mm));
-        assert_eq!(moving.miss_band(), GROW_THRESHOLD * moving.sensor_sigma());
+        let band = moving.miss_band();
+        assert_eq!((band.half_width, band.sigma_from), (GROW_THRESHOLD * moving.sensor_sigma(), SigmaSource::Record));
     }
 
     #[test]
@@ -1053,10 +1055,10 @@ mod tests {
         for k in 0..trials {
             let read = sensor.read(&vec![0.0; t_s.len()], &mut crate::rng::seeded(91, k)).expect("read");
             let data = MotionData { axis: Axis::Y, t_s: t_s.clone(), cmd_mm: cmd_mm.clone(), meas_mm: read.iter().map(|y| y * 1e3).collect() };
-            let band = data.miss_band();
+            let band = data.miss_band().half_width;
             widths += band / 3e-3;
             missed += usize::from(data.meas_mm.iter().any(|y| y.abs() > band));
-            let given = MotionDomain::new(data.clone(), Some(known)).expect("domain").band();
+            let given = MotionDomain::new(data.clone(), Some(known)).expect("domain").band.half_width;
             missed_known += usize::from(data.meas_mm.iter().any(|y| y.abs() > given));
         }
         let rate = missed as f64 / trials as f64;

@@ -306,6 +306,18 @@ impl AxisPlant {
         (0.5 * (tr + disc)).sqrt()
     }
 
+    /// Where the axis rests for the command `cmd_m` (m): the motor side where the drive's
+    /// pull balances the detent force ([`rest_position`]), the belt slack-free and the
+    /// moved axis at its end. Without cogging, the command itself.
+    pub fn rest_position(&self, cmd_m: f64) -> f64 {
+        if self.cogging == [0.0, 0.0] {
+            return cmd_m;
+        }
+        let drive_stiffness = 2.0 * self.drive_k / (self.r_m * self.r_m);
+        let reach = (self.cogging[0].abs() + self.cogging[1].abs()) / drive_stiffness;
+        rest_position(|z| self.forces(&[z, z], &[0.0; 2], cmd_m, z)[0], cmd_m, reach)
+    }
+
     /// Spring, drive, cogging and viscous forces on (z, q): everything but dry friction.
     #[inline]
     fn forces(&self, x: &[f64; 2], v: &[f64; 2], cmd_m: f64, play: f64) -> [f64; 2] {
@@ -348,7 +360,8 @@ impl AxisPlant {
     }
 
     /// Positions of the moved axis (m) at the times `t_s` (increasing), starting at
-    /// rest at the command's first value, driven by `cmd_m(t)` (commanded axis
+    /// rest at the command's first value ([`Self::rest_position`]: in the detent's pull,
+    /// as an axis left standing; no ring at the start), driven by `cmd_m(t)` (commanded axis
     /// position, m). Each sample interval is split into equal RK4 steps no longer than
     /// `max_step_s`, sub-stepped through Stribeck transitions (`substep`); friction
     /// modes switch between (sub-)steps as in `hbot::twin`.
@@ -371,7 +384,7 @@ impl AxisPlant {
         let Some(&t0) = t_s.first() else {
             return Ok(Vec::new());
         };
-        let start = cmd_m(t0);
+        let start = self.rest_position(cmd_m(t0));
         let mut x = [start, start];
         let mut v = [0.0; 2];
         let mut modes = [Mode::Stuck; 2];
@@ -521,6 +534,32 @@ impl AxisPlant {
     }
 }
 
+/// The motor side's rest position near the command `cmd`: a root of the net force
+/// `net(z)` (drive plus detent, the belt slack-free) where it falls through zero — a
+/// stable rest, as an axis left standing settles into — by bisection to f64 resolution
+/// on [cmd − reach, cmd + reach], `reach` bounding the detent force over the drive's
+/// stiffness (the net force is ≥ 0 at the bracket's low end and ≤ 0 at its high one).
+/// With several stable rests (a detent stronger than the drive's slope) bisection
+/// picks one, the same one every time. The command itself if `net` does not bracket.
+pub fn rest_position(net: impl Fn(f64) -> f64, cmd: f64, reach: f64) -> f64 {
+    let margin = 0.01 * reach + 1e-12;
+    let (mut lo, mut hi) = (cmd - reach - margin, cmd + reach + margin);
+    if !(net(lo) >= 0.0 && net(hi) <= 0.0) {
+        return cmd;
+    }
+    loop {
+        let mid = 0.5 * (lo + hi);
+        if mid <= lo || mid >= hi {
+            return mid;
+        }
+        if net(mid) > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+}
+
 /// Linear interpolation of samples `(t_s, y)`; held constant outside the range.
 /// `t_s` must be increasing (checked by the callers' data readers).
 pub fn interpolate(t_s: &[f64], y: &[f64], t: f64) -> f64 {
@@ -645,6 +684,30 @@ mod tests {
             z = 2e-3 + a * (wave * z).sin() / k_drive;
         }
         assert!((cog[300] - z).abs() < 0.01 * a / k_drive, "{} vs {z}", cog[300]);
+    }
+
+    #[test]
+    fn a_cogging_axis_starts_at_rest_in_the_detents_pull() {
+        // The rest solves z = cmd + (A_s sin(2πz/p) + A_c cos(2πz/p))/k_drive, found here
+        // by fixed-point iteration (a contraction: slope ratio |A|·2π/p/k_drive ≈ 0.8).
+        let p = HbotParams { fc_bridge_n: 0.0, fc_cart_n: 0.0, t0_nm: 0.0, ..HbotParams::source_identified() };
+        let (a_s, a_c, cmd) = (3.0, -2.0, 1.234e-3);
+        let plant = AxisPlant::new(&p, Axis::Y, &MotionEffects { cogging_sin_n: a_s, cogging_cos_n: a_c, ..Default::default() }).expect("plant");
+        let k_drive = 2.0 * p.drive.stiffness_nm_per_rad / (p.r_m * p.r_m);
+        let wave = FULL_STEPS_PER_REV / p.r_m;
+        let mut z = cmd;
+        for _ in 0..2000 {
+            z = cmd + (a_s * (wave * z).sin() + a_c * (wave * z).cos()) / k_drive;
+        }
+        let rest = plant.rest_position(cmd);
+        assert!((rest - cmd).abs() > 5e-6 && (rest - z).abs() < 1e-12, "rest {rest} vs {z}");
+        // Held there, it does not move (from the command itself it rang by micrometres).
+        let y = plant.simulate(&times(100, 0.01), &|_| cmd, plant.default_step_s()).expect("sim");
+        let moved = y.iter().map(|y| (y - rest).abs()).fold(0.0, f64::max);
+        assert!(moved < 1e-12, "moved {moved} m");
+        // Without cogging the rest is the command, bit for bit.
+        let plain = AxisPlant::new(&p, Axis::Y, &MotionEffects::default()).expect("plant");
+        assert_eq!(plain.rest_position(cmd), cmd);
     }
 
     #[test]

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Version of the generator, recorded with every answer (bump on any change of output).
-pub const GENERATOR: &str = "fdmlab-motion-hidden/3";
+pub const GENERATOR: &str = "fdmlab-motion-hidden/4";
 
 /// The protocol's segments: (duration s, commanded displacement mm). The source's two
 /// 8 mm moves (0.25 s and 0.75 s; Cao, Bi & Zou 2021, §3.1) out and back, then a slow

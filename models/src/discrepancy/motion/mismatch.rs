@@ -28,7 +28,8 @@
 //!   Coulomb friction (tested); at the nominal σ0 a 9 N level still differs from it
 //!   by ≈ 5 µm RMS — the model-form gap the Coulomb cases carry.
 //! - Cogging has a second harmonic (35 % of the fundamental, its own phase): the
-//!   library's detent term is the fundamental alone.
+//!   library's detent term is the fundamental alone. The log starts at rest in the
+//!   detent's pull (both harmonics), as an axis left standing does.
 //! - Outside the library: a periodic force on the axis (a fan's imbalance shaking
 //!   the frame, 17 Hz, random phase) and a reading that drifts linearly over the
 //!   log (the laser's mount warming).
@@ -42,6 +43,7 @@
 //! case. The library's backlash is not among the features (the set would double in
 //! cost; the hidden set covers it).
 
+use super::axis::rest_position;
 use super::{identify, MotionData, MotionModel};
 use crate::discrepancy::mismatch::{self, Planned};
 use crate::discrepancy::ode::dormand_prince;
@@ -55,7 +57,7 @@ use std::collections::BTreeMap;
 use std::f64::consts::TAU;
 
 /// Name and version of this generator, recorded with every answer.
-pub const GENERATOR: &str = "fdmlab-motion-mismatch/1";
+pub const GENERATOR: &str = "fdmlab-motion-mismatch/2";
 
 /// Library effects the generator's physics can show.
 pub const FEATURES: [&str; 5] = ["coulomb_friction", "stribeck", "viscous_friction", "belt_compliance", "cogging"];
@@ -203,10 +205,20 @@ impl Plant {
     }
 
     /// Bridge positions (m) at `t_s` for the commanded positions `cmd_mm` (linear
-    /// between samples), from rest at the first command; the reading's drift included.
+    /// between samples), from rest at the first command (in the detent's pull, the
+    /// belt slack-free); the reading's drift included.
     pub fn simulate(&self, t_s: &[f64], cmd_mm: &[f64]) -> Result<Vec<f64>, ModelError> {
-        let start = cmd_mm.first().copied().unwrap_or(0.0) * 1e-3;
+        let cmd0 = cmd_mm.first().copied().unwrap_or(0.0) * 1e-3;
         let total = t_s.last().copied().unwrap_or(1.0).max(1e-9);
+        // At rest in the detent's pull (both harmonics), the belt slack-free.
+        let start = if self.cogging_n == 0.0 {
+            cmd0
+        } else {
+            let drive_stiffness = 2.0 * self.params.drive.stiffness_nm_per_rad / self.params.r_m.powi(2);
+            let reach = self.cogging_n.abs() * (1.0 + self.cogging_h2.abs()) / drive_stiffness;
+            let t0 = t_s.first().copied().unwrap_or(0.0);
+            rest_position(|z| self.rates([z, 0.0, z, 0.0, z, 0.0, 0.0], t0, cmd0)[1], cmd0, reach)
+        };
         let mut x = [start, 0.0, start, 0.0, start, 0.0, 0.0];
         let mut h = 1e-5;
         let mut out = Vec::with_capacity(t_s.len());
@@ -422,5 +434,22 @@ mod tests {
         };
         let g = [gap(2e6), gap(2e7), gap(2e8)];
         assert!(g[1] < g[0] / 3.0 && g[2] < g[1] / 3.0 && g[2] < 0.3, "gap {g:?} µm RMS");
+    }
+
+    #[test]
+    fn a_cogging_axis_standing_still_stays_still() {
+        // Held at one command, an axis that starts in its detent's pull (both harmonics)
+        // does not move: every reading equals the first to the integrator's tolerance
+        // (1 nm; the start off that rest rang by micrometres before).
+        let p = Plant { cogging_n: 4.0, cogging_phase: 0.9, cogging_h2_phase: -2.1, ..Plant::nominal() };
+        let t: Vec<f64> = (0..=50).map(|i| i as f64 * 0.01).collect();
+        let y = p.simulate(&t, &vec![1.234; t.len()]).expect("simulate");
+        let moved = y.iter().map(|v| (v - y[0]).abs()).fold(0.0, f64::max);
+        assert!(moved < 1e-9, "moved {moved} m");
+        // The rest is the drive's pull against the detent: k·(cmd − z) + F_cog(z) = 0.
+        let (r, kd) = (p.params.r_m, p.params.drive.stiffness_nm_per_rad);
+        let phase = y[0] * crate::discrepancy::motion::axis::FULL_STEPS_PER_REV / r;
+        let cog = p.cogging_n * ((phase + p.cogging_phase).sin() + p.cogging_h2 * (2.0 * phase + p.cogging_h2_phase).sin());
+        assert!((2.0 * kd / (r * r) * (1.234e-3 - y[0]) + cog).abs() < 1e-6, "net force at rest {cog}");
     }
 }
