@@ -1067,4 +1067,32 @@ mod tests {
         let rate_known = missed_known as f64 / trials as f64;
         assert!((0.005..=0.02).contains(&rate_known), "{missed_known} of {trials} records leave the known σ's band");
     }
+
+    /// Strong cogging (4 N: the detent's slope 0.9× the drive's) on development seeds
+    /// 28–39, which no evaluation ever used: the workflow's fit must reach the residual of
+    /// the same fit started at the truth (within 5 %, what two fits of one minimum differ
+    /// by at most). Fails on 2 of 24 (seed 34's 1 µm case: 10.4 µm for 1.07; seed 38's
+    /// 3 µm case: 14.6 for 3.04): LM from the ranking's start stops at ~¾ of the amplitude
+    /// with J_M off — a local minimum, not the data's limit (docs/discrepancy-domains.md).
+    #[test]
+    #[ignore = "fails on 2 of 24 strong cogging cases (a local minimum of the cogging fit; issue #27 open); ~1 min in release"]
+    fn strong_cogging_fits_reach_the_residual_of_a_fit_from_the_truth() {
+        let mut missed = Vec::new();
+        for seed in 28..40u64 {
+            let config = hidden::HiddenConfig { zero_cases: 0, pairs: Vec::new(), ..hidden::HiddenConfig::small(seed) };
+            for c in hidden::generate(&config).expect("generate").iter().filter(|c| c.answer.id.starts_with("cogging-m2")) {
+                let out = discrepancy(c.data.clone(), None, &ValidSelectOptions::default(), &crate::discrepancy::Watch::default()).expect("workflow");
+                let p = &c.answer.effects[0].parameters;
+                let mut truth = MotionModel::base(c.data.axis);
+                truth.params.j_m_kgm2 = c.answer.j_m_kgm2;
+                (truth.effects.cogging_sin_n, truth.effects.cogging_cos_n) = (p["cogging_sin_n"], p["cogging_cos_n"]);
+                let from_truth = identify(&c.data, &truth, &[MotionEffect::Cogging]).expect("fit");
+                let reach = crate::metrics::rms(&c.data.meas_mm, &from_truth.predict_mm(&c.data).expect("simulate"));
+                if out.report.after.rms > 1.05 * reach {
+                    missed.push(format!("seed {seed} {}: {:.2} µm, from the truth {:.2} µm", c.answer.id, out.report.after.rms * 1e3, reach * 1e3));
+                }
+            }
+        }
+        assert!(missed.is_empty(), "{missed:#?}");
+    }
 }
