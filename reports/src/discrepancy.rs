@@ -54,7 +54,7 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
     });
     if let Some(b) = &r.miss_band {
         doc.paragraph(format!(
-            "A stick–slip fit counts as explaining the record when it keeps every reading within ±{} {unit}: {}× σ = {} {unit}, {}.",
+            "A fit counts as explaining the record when it keeps every reading within ±{} {unit} ({}× σ = {} {unit}, {}): the band a stick–slip fit is grown to, and a cogging fit outside it is rescanned over its amplitude.",
             num(b.half_width, 3),
             num(b.half_width / b.sigma, 3),
             num(b.sigma, 3),

@@ -265,7 +265,7 @@ fn run(a: RunArgs, ctx: &Ctx) -> anyhow::Result<()> {
         }
         if let Some(b) = &r.miss_band {
             s.push_str(&format!(
-                "stick–slip fits kept within ±{:.4e} of every reading ({:.2}× σ {:.3e}, {})\n",
+                "miss band (a fit within it explains the record; stick–slip fits grow to it, cogging fits outside it are rescanned): ±{:.4e} ({:.2}× σ {:.3e}, {})\n",
                 b.half_width,
                 b.half_width / b.sigma,
                 b.sigma,

@@ -151,8 +151,8 @@ fn motion_verdicts_of(config: &mhidden::HiddenConfig) -> Vec<Verdict> {
 
 /// Seeds of the motion hidden set never run while the workflow or its gate were
 /// developed (seed 3 was; issue #27, Deliver 3). Add new seeds, never swap them.
-const UNTOUCHED_MOTION_SEEDS: [u64; 22] =
-    [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534, 7535, 7536, 7537, 7538, 7539, 7540, 7541, 7542];
+const UNTOUCHED_MOTION_SEEDS: [u64; 24] =
+    [7511, 7512, 7513, 7514, 7515, 7516, 7517, 7518, 7519, 7520, 7531, 7532, 7533, 7534, 7535, 7536, 7537, 7538, 7539, 7540, 7541, 7542, 7543, 7544];
 
 /// Untouched seeds whose sets are also drawn with the true J_M centred 30 % below and
 /// above the source's value, the workflow's prior start (issue #27, Deliver 3 and 5).
@@ -172,7 +172,7 @@ fn motion_hidden_set_drawn_off_the_prior_meets_the_criteria() {
 }
 
 #[test]
-#[ignore = "fails the criteria on twelve of the twenty-two seeds (97.0 % named exactly over the twenty-two, but per seed pairs missed, cases unhalved or > 5 % wrong: Stribeck + belt-compliance pairs, weak Stribeck and strong cogging cases; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~33 min for the twenty-two in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on some of the seeds (per seed pairs missed, cases unhalved or > 5 % wrong, mostly Stribeck + belt-compliance pairs and weak Stribeck cases; issue #27 open); per-seed figures in docs/discrepancy-domains.md; ~36 min for the twenty-four in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_meets_the_criteria_on_untouched_seeds() {
     check_criteria_per_seed("motion", &UNTOUCHED_MOTION_SEEDS, motion_verdicts);
 }

@@ -163,6 +163,12 @@ impl HbotParams {
         }
     }
 
+    /// Both motors' holding stiffness seen at the belt (N/m): 2·k_θ/r², each motor's
+    /// torque stiffness through its pulley.
+    pub fn drive_stiffness_n_per_m(&self) -> f64 {
+        2.0 * self.drive.stiffness_nm_per_rad / (self.r_m * self.r_m)
+    }
+
     /// Value of one identifiable parameter.
     pub fn get(&self, p: Param) -> f64 {
         match p {

@@ -213,6 +213,8 @@ pub struct AxisPlant {
     backlash: f64,
     r_m: f64,
     drive_k: f64,
+    /// [`HbotParams::drive_stiffness_n_per_m`].
+    drive_stiffness: f64,
     drive_max: f64,
     cogging: [f64; 2],
     cog_wavenumber: f64,
@@ -251,6 +253,7 @@ impl AxisPlant {
             backlash: effects.backlash_m,
             r_m: r,
             drive_k: p.drive.stiffness_nm_per_rad,
+            drive_stiffness: p.drive_stiffness_n_per_m(),
             drive_max: p.drive.holding_torque_nm,
             cogging: [effects.cogging_sin_n, effects.cogging_cos_n],
             cog_wavenumber: FULL_STEPS_PER_REV / r,
@@ -296,7 +299,7 @@ impl AxisPlant {
     /// Highest undamped mode (rad/s) bound: the 2×2 M⁻¹K with the linear drive
     /// stiffness 2·K_d/r² and the cogging force's largest slope added on z.
     pub fn omega_max_rad_s(&self) -> f64 {
-        let kd = 2.0 * self.drive_k / (self.r_m * self.r_m) + self.cogging[0].hypot(self.cogging[1]) * self.cog_wavenumber;
+        let kd = self.drive_stiffness + self.cogging[0].hypot(self.cogging[1]) * self.cog_wavenumber;
         let kb = self.k_belt;
         // Symmetric S = M^-½ K M^-½ with K = [[kd + kb, −kb], [−kb, kb]].
         let (a, d) = ((kd + kb) / self.mass[0], kb / self.mass[1]);
@@ -313,8 +316,7 @@ impl AxisPlant {
         if self.cogging == [0.0, 0.0] {
             return cmd_m;
         }
-        let drive_stiffness = 2.0 * self.drive_k / (self.r_m * self.r_m);
-        let reach = (self.cogging[0].abs() + self.cogging[1].abs()) / drive_stiffness;
+        let reach = (self.cogging[0].abs() + self.cogging[1].abs()) / self.drive_stiffness;
         rest_position(|z| self.forces(&[z, z], &[0.0; 2], cmd_m, z)[0], cmd_m, reach)
     }
 
@@ -663,7 +665,7 @@ mod tests {
         // Coulomb friction Fc stops the axis short: the drive stiffness 2K_d/r² must hold
         // it, so the final lag is at most Fc/(2K_d/r²) (sticks as soon as it can).
         let fc = 10.0;
-        let k_drive = 2.0 * p.drive.stiffness_nm_per_rad / (p.r_m * p.r_m);
+        let k_drive = p.drive_stiffness_n_per_m();
         let coul = run(MotionEffects { coulomb_n: fc, ..Default::default() });
         let lag = 2e-3 - coul[300];
         assert!(lag > 0.0 && lag <= fc / k_drive * (1.0 + 1e-9), "lag {lag}");
@@ -693,7 +695,7 @@ mod tests {
         let p = HbotParams { fc_bridge_n: 0.0, fc_cart_n: 0.0, t0_nm: 0.0, ..HbotParams::source_identified() };
         let (a_s, a_c, cmd) = (3.0, -2.0, 1.234e-3);
         let plant = AxisPlant::new(&p, Axis::Y, &MotionEffects { cogging_sin_n: a_s, cogging_cos_n: a_c, ..Default::default() }).expect("plant");
-        let k_drive = 2.0 * p.drive.stiffness_nm_per_rad / (p.r_m * p.r_m);
+        let k_drive = p.drive_stiffness_n_per_m();
         let wave = FULL_STEPS_PER_REV / p.r_m;
         let mut z = cmd;
         for _ in 0..2000 {

@@ -214,8 +214,7 @@ impl Plant {
         let start = if self.cogging_n == 0.0 {
             cmd0
         } else {
-            let drive_stiffness = 2.0 * self.params.drive.stiffness_nm_per_rad / self.params.r_m.powi(2);
-            let reach = self.cogging_n.abs() * (1.0 + self.cogging_h2.abs()) / drive_stiffness;
+            let reach = self.cogging_n.abs() * (1.0 + self.cogging_h2.abs()) / self.params.drive_stiffness_n_per_m();
             let t0 = t_s.first().copied().unwrap_or(0.0);
             rest_position(|z| self.rates([z, 0.0, z, 0.0, z, 0.0, 0.0], t0, cmd0)[1], cmd0, reach)
         };
@@ -447,9 +446,9 @@ mod tests {
         let moved = y.iter().map(|v| (v - y[0]).abs()).fold(0.0, f64::max);
         assert!(moved < 1e-9, "moved {moved} m");
         // The rest is the drive's pull against the detent: k·(cmd − z) + F_cog(z) = 0.
-        let (r, kd) = (p.params.r_m, p.params.drive.stiffness_nm_per_rad);
+        let r = p.params.r_m;
         let phase = y[0] * crate::discrepancy::motion::axis::FULL_STEPS_PER_REV / r;
         let cog = p.cogging_n * ((phase + p.cogging_phase).sin() + p.cogging_h2 * (2.0 * phase + p.cogging_h2_phase).sin());
-        assert!((2.0 * kd / (r * r) * (1.234e-3 - y[0]) + cog).abs() < 1e-6, "net force at rest {cog}");
+        assert!((p.params.drive_stiffness_n_per_m() * (1.234e-3 - y[0]) + cog).abs() < 1e-6, "net force at rest {cog}");
     }
 }
