@@ -226,6 +226,6 @@ mod tests {
         let mut o = o;
         o.report.miss_band = Some(MissBand { half_width: 1.2, sigma: 0.3, sigma_from: SigmaSource::Given });
         let md = report("motion", "axis.csv", &o).to_markdown();
-        assert!(md.contains("within ±1.20 °C: 4.00× σ = 0.300 °C, the σ given."), "{md}");
+        assert!(md.contains("within ±1.20 °C (4.00× σ = 0.300 °C, the σ given)"), "{md}");
     }
 }
