@@ -138,6 +138,15 @@ pub fn report<M>(domain: &str, data: &str, o: &Outcome<M>) -> Report {
             ));
         }
     }
+    for e in r.effects.iter().filter(|e| e.evidence.get("reduced_to_nested") == Some(&1.0)) {
+        let shape = e.evidence.get("shape_rms").map_or("–".into(), |v| num(*v, 3));
+        doc.paragraph(format!(
+            "`{}` was fitted as a richer effect that nests it, whose shape (what `{}` cannot take, RMS {shape} {unit}) was below {}× the final residual's RMS: it is named as the simpler effect.",
+            e.name,
+            e.name,
+            num(fdmlab_models::discrepancy::gate::CONTRIBUTION_MARGIN, 2)
+        ));
+    }
     for n in &r.not_significant {
         doc.paragraph(format!("`{}` was found but is not significant, and is not in the model: {}.", n.name, n.reasons.join("; ")));
     }
@@ -227,5 +236,10 @@ mod tests {
         o.report.miss_band = Some(MissBand { half_width: 1.2, sigma: 0.3, sigma_from: SigmaSource::Given });
         let md = report("motion", "axis.csv", &o).to_markdown();
         assert!(md.contains("within ±1.20 °C (4.00× σ = 0.300 °C, the σ given)"), "{md}");
+        assert!(!md.contains("richer effect"), "{md}");
+        // An effect named as the simpler one it nests: its shape from the evidence.
+        o.report.effects[0].evidence = BTreeMap::from([("reduced_to_nested".to_string(), 1.0), ("shape_rms".to_string(), 0.000431)]);
+        let md = report("motion", "axis.csv", &o).to_markdown();
+        assert!(md.contains("(what `fan_cooling` cannot take, RMS 0.000431 °C) was below 1.5× the final residual's RMS"), "{md}");
     }
 }

@@ -175,6 +175,13 @@ pub trait Domain {
     fn twin(&self, _model: &Self::Model, _effect: &str) -> Option<Ranked> {
         None
     }
+    /// `model` with `effect` reduced to the simpler effect it nests, its shape parameter
+    /// at its limit and nothing refitted (a Stribeck excess at v_s → ∞ is a Coulomb
+    /// level of its size), and that effect's name ([`reduce_nested`]). `None` (the
+    /// default): no simpler nested effect.
+    fn reduce(&self, _model: &Self::Model, _effect: &str) -> Option<(&'static str, Self::Model)> {
+        None
+    }
     /// Whether [`gate`] measures an effect's size with the rest refitted without it
     /// (the default) rather than only switched off.
     fn refit_contribution(&self) -> bool {
@@ -623,6 +630,7 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             announce("twin check of the named effects".into());
         }
         twin_check(domain, &y, &mut effects, &mut ambiguous, &mut current, &mut r_cur);
+        reduce_nested(domain, &y, &mut effects, &mut current, &mut r_cur);
     }
     // Every named effect must earn its name at the final model (size, confidence,
     // physics); the weakest failing one is dropped and the rest refitted, until all pass.
@@ -684,6 +692,45 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         model_after: current,
         report,
     })
+}
+
+/// Every named effect that nests a simpler one ([`Domain::reduce`]) must show its
+/// shape, what its reduction cannot: the final model against that reduction, measured
+/// as the gate's size test measures a contribution ([`Domain::gap_rms`]; the rest
+/// refitted where the domain refits a contribution), at least
+/// [`gate::CONTRIBUTION_MARGIN`] times the final residual's RMS. Otherwise it is named
+/// as its reduction, re-identified (`evidence.reduced_to_nested` = 1).
+/// `evidence.shape_rms` holds the measure either way. Skipped where the simpler effect
+/// is named beside it.
+fn reduce_nested<D: Domain>(domain: &D, y: &[f64], effects: &mut [Effect], current: &mut D::Model, r_cur: &mut Vec<f64>) {
+    for i in 0..effects.len() {
+        let name = effects[i].name.clone();
+        let Some((simpler, limit)) = domain.reduce(current, &name) else {
+            continue;
+        };
+        if effects.iter().any(|e| e.name == simpler) {
+            continue;
+        }
+        // `remove` of the effect, already off in the limit, re-identifies the rest.
+        let refit = || domain.remove(&limit, &name).ok();
+        let compared = if domain.refit_contribution() { refit() } else { Some(limit.clone()) };
+        let Some(compared) = compared else {
+            continue;
+        };
+        let sim = domain.simulate(current);
+        let shape = domain.gap_rms(&sim, &domain.simulate(&compared));
+        effects[i].evidence.insert("shape_rms".into(), shape);
+        if shape >= gate::CONTRIBUTION_MARGIN * domain.gap_rms(y, &sim) {
+            continue;
+        }
+        let reduced = if domain.refit_contribution() { Some(compared) } else { refit() };
+        if let Some((m, r1)) = reduced.and_then(|m| simulated_residual(domain, y, &m).map(|r1| (m, r1))) {
+            effects[i].name = simpler.to_string();
+            effects[i].evidence.insert("reduced_to_nested".into(), 1.0);
+            *current = m;
+            *r_cur = r1;
+        }
+    }
 }
 
 /// Every named effect with a [`Domain::twin`] not named beside it is swapped for its

@@ -810,7 +810,8 @@ impl Domain for MotionDomain {
         e.set(&mut seeded.effects, &v);
         let mut effects = active_effects(model);
         effects.push(e);
-        let fitted = if MotionEffect::Stribeck.is_on(&model.effects) {
+        let stick_slip = MotionEffect::Stribeck.is_on(&model.effects);
+        let fitted = if stick_slip {
             // The model already tracks the stick–slip: the new term is refitted with the
             // rest over the whole record from there. Growing the horizon again from its
             // first samples would only repeat the Stribeck search (seconds a case).
@@ -818,7 +819,7 @@ impl Domain for MotionDomain {
         } else {
             identify_grown(&self.data, &seeded, &effects, self.band.half_width, self.deadline)?
         };
-        if e != MotionEffect::Cogging || MotionEffect::Stribeck.is_on(&model.effects) || self.explains(&fitted) {
+        if e != MotionEffect::Cogging || stick_slip || self.explains(&fitted) {
             return Ok(fitted);
         }
         // A cogging fit that leaves readings outside the band may have stopped short of
@@ -889,6 +890,17 @@ impl Domain for MotionDomain {
             return None;
         }
         self.join(&stribeck_start(&self.without(current, named)), start, effect)
+    }
+    fn reduce(&self, model: &MotionModel, effect: &str) -> Option<(&'static str, MotionModel)> {
+        // A Stribeck excess whose velocity lies beyond the record's speeds decays
+        // nowhere in it: a Coulomb level of its size (development seeds 29 and 32:
+        // Coulomb levels of 1 and 3 N named `stribeck` at v_s = 137 and 227 mm/s).
+        if MotionEffect::from_name(effect)? != MotionEffect::Stribeck {
+            return None;
+        }
+        let mut m = self.without(model, effect);
+        m.effects.coulomb_n = model.effects.stribeck_n;
+        Some((MotionEffect::CoulombFriction.name(), m))
     }
     fn fitted_parameters(&self, effect: &str, columns: usize) -> usize {
         // The Stribeck velocity is fitted beside the level (see `identify`).
