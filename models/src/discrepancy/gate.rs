@@ -250,7 +250,7 @@ pub fn switched_off_rms<D: Domain>(domain: &D, model: &D::Model, sim: &[f64], na
 }
 
 /// [`Domain::gap_rms`] between a simulation `sim` and that of `other`.
-fn gap_rms<D: Domain>(domain: &D, sim: &[f64], other: &D::Model) -> f64 {
+pub fn gap_rms<D: Domain>(domain: &D, sim: &[f64], other: &D::Model) -> f64 {
     domain.gap_rms(sim, &domain.simulate(other))
 }
 

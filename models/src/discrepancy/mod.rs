@@ -718,7 +718,7 @@ fn reduce_nested<D: Domain>(domain: &D, y: &[f64], effects: &mut [Effect], curre
             continue;
         };
         let sim = domain.simulate(current);
-        let shape = domain.gap_rms(&sim, &domain.simulate(&compared));
+        let shape = gate::gap_rms(domain, &sim, &compared);
         effects[i].evidence.insert("shape_rms".into(), shape);
         if shape >= gate::CONTRIBUTION_MARGIN * domain.gap_rms(y, &sim) {
             continue;
