@@ -43,8 +43,10 @@
 //! else they are reported `ambiguous`; a named effect with rivals chosen before a
 //! later effect was named is refitted afresh beside it, itself and its rivals, the
 //! best kept (`refit_rivals_beside`); when no further effect passes but the
-//! residual still leaves the noise band (or a named effect with rivals is too
-//! small beside it for the gate), one joint refit of a masked effect (`join`), after which
+//! residual still leaves the noise band or the domain's miss band (or a named effect
+//! with rivals is too small beside it for the gate), one joint refit of a masked
+//! effect (`join`, also with a named effect's rival or close runner-up in its place,
+//! `join_in_place`), after which
 //! every named effect with rivals is refitted afresh beside the joined one likewise;
 //! then every named effect must earn its name at the final model
 //! ([`gate`]: contribution against the noise, confidence region excluding zero,
@@ -162,9 +164,10 @@ pub trait Domain {
     fn join(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked) -> Option<Self::Model> {
         None
     }
-    /// [`Domain::join`] with the named effect `named` replaced by its rival `rival`
-    /// (from the rival's own start): for a rival that lost to the named one only while
-    /// the masked effect was missing. `None` (the default): no such refit.
+    /// [`Domain::join`] with the named effect `named` replaced by `rival`, its rival or a
+    /// contender it beat by less than [`DECISIVE_BIC`] in its round (from the rival's own
+    /// start): for a rival that lost to the named one only while the masked effect was
+    /// missing. `None` (the default): no such refit.
     fn join_in_place(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked, _named: &str, _rival: &str) -> Option<Self::Model> {
         None
     }
@@ -462,6 +465,9 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     let mut ambiguous: Vec<Vec<String>> = Vec::new();
     let mut excluded: Vec<String> = Vec::new();
     let mut ranking: Option<Vec<Ranked>> = None;
+    // Contenders each named effect beat in its round by less than DECISIVE_BIC (not told
+    // apart): tried in its place in the joins, as its rivals are.
+    let mut runner_ups: BTreeMap<String, Vec<String>> = BTreeMap::new();
     let round = opts.one_effect();
     while effects.len() < opts.max_effects() {
         let candidates: Vec<Candidate> = domain.candidates(&current).into_iter().filter(|c| !excluded.contains(&c.name)).collect();
@@ -502,6 +508,10 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
             let mut fits: Vec<(&Ranked, D::Model, Vec<f64>, f64)> = contenders.iter().filter_map(|r| try_add(r).map(|(m, r1, d)| (*r, m, r1, d))).collect();
             fits.sort_by(|a, b| a.3.total_cmp(&b.3));
             let gap = fits.get(1).map(|b| b.3 - fits[0].3);
+            if let Some(first) = fits.first() {
+                let close = fits[1..].iter().filter(|f| f.3 - first.3 < DECISIVE_BIC).map(|f| f.0.name.clone()).collect();
+                runner_ups.insert(first.0.name.clone(), close);
+            }
             match fits.into_iter().next() {
                 Some((r, m, r1, d)) => {
                     let mut ev = evidence(r, &r_cur, &r1, d);
@@ -565,13 +575,16 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // the simulation by less than the gate's size margin times the residual (an upper
     // bound of the gate's refitted contribution): a band whose σ̂ reads the unexplained
     // effects' own fast content as noise (motion's stick–slip with a soft belt) hides
-    // the disagreement the named effect leaves.
+    // the disagreement the named effect leaves. Due likewise where a reading lies outside
+    // the domain's miss band (read from the sensor, not from σ̂).
     let too_small = || {
         let sim = domain.simulate(&current);
         let bar = gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim);
         effects.iter().filter(|e| !domain.rivals(&e.name).is_empty()).any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < bar)
     };
-    let join_due = !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || too_small());
+    let misses_band = || domain.miss_band().is_some_and(|b| r_cur.iter().any(|v| !(v.abs() <= b.half_width)));
+    let join_due =
+        !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || misses_band() || too_small());
     if join_due && stopped.is_none() {
         stopped = watch.stopped(&at.borrow(), &["joint refit", "twin check"]);
     }
@@ -579,14 +592,24 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         let ranked = ranking.as_deref().unwrap_or_default();
         let width = |n: &str| ranked_width(domain, ranked, n);
         let named = |n: &str| effects.iter().any(|e| e.name == n);
-        // Each join as it is and with a named effect's rival (not named) in its place.
+        // Each join as it is and with a named effect's rival or runner-up (not named) in its place.
         let swaps: Vec<Option<(usize, &str)>> = std::iter::once(None)
-            .chain(effects.iter().enumerate().flat_map(|(i, e)| domain.rivals(&e.name).iter().filter(|v| !named(v)).map(move |v| Some((i, *v)))))
+            .chain(effects.iter().enumerate().flat_map(|(i, e)| {
+                let close = runner_ups.get(&e.name).into_iter().flatten().map(String::as_str);
+                let mut to: Vec<&str> = Vec::new();
+                for v in domain.rivals(&e.name).iter().copied().chain(close) {
+                    if !named(v) && !to.contains(&v) {
+                        to.push(v);
+                    }
+                }
+                to.into_iter().map(move |v| Some((i, v)))
+            }))
             .collect();
         let best = ranked
             .iter()
             .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
             .flat_map(|r| swaps.iter().map(move |s| (r, *s)))
+            .filter(|(r, swap)| swap.is_none_or(|(_, v)| v != r.name))
             .filter_map(|(r, swap)| {
                 if watch.expired() {
                     return None;
@@ -699,9 +722,9 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
 /// as the gate's size test measures a contribution ([`Domain::gap_rms`]; the rest
 /// refitted where the domain refits a contribution), at least
 /// [`gate::CONTRIBUTION_MARGIN`] times the final residual's RMS. Otherwise it is named
-/// as its reduction, re-identified (`evidence.reduced_to_nested` = 1).
-/// `evidence.shape_rms` holds the measure either way. Skipped where the simpler effect
-/// is named beside it.
+/// as its reduction, re-identified (`evidence.reduced_to_nested` = 1; where that refit
+/// fails, the reduction as compared). `evidence.shape_rms` holds the measure either
+/// way. Skipped where the simpler effect is named beside it.
 fn reduce_nested<D: Domain>(domain: &D, y: &[f64], effects: &mut [Effect], current: &mut D::Model, r_cur: &mut Vec<f64>) {
     for i in 0..effects.len() {
         let name = effects[i].name.clone();
@@ -723,7 +746,8 @@ fn reduce_nested<D: Domain>(domain: &D, y: &[f64], effects: &mut [Effect], curre
         if shape >= gate::CONTRIBUTION_MARGIN * domain.gap_rms(y, &sim) {
             continue;
         }
-        let reduced = if domain.refit_contribution() { Some(compared) } else { refit() };
+        // Where the refit fails, the limit as compared (it explains the record as well, by the test above).
+        let reduced = if domain.refit_contribution() { Some(compared) } else { refit().or(Some(compared)) };
         if let Some((m, r1)) = reduced.and_then(|m| simulated_residual(domain, y, &m).map(|r1| (m, r1))) {
             effects[i].name = simpler.to_string();
             effects[i].evidence.insert("reduced_to_nested".into(), 1.0);

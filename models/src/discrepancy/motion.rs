@@ -788,7 +788,20 @@ impl Domain for MotionDomain {
     }
     fn remove(&self, model: &MotionModel, effect: &str) -> Result<MotionModel, ModelError> {
         let m = self.without(model, effect);
-        identify(&self.data, &m, &active_effects(&m))
+        let effects = active_effects(&m);
+        let refit = identify(&self.data, &m, &effects)?;
+        // A term switched off in a stick–slipping model moves every later stick, and a
+        // fit over the whole record stays where it starts (`identify_grown`): where the
+        // refit misses a reading, the rest is grown again from the switched-off model,
+        // the better kept.
+        if !MotionEffect::Stribeck.is_on(&m.effects) || self.explains(&refit) {
+            return Ok(refit);
+        }
+        let Ok(grown) = identify_grown(&self.data, &m, &effects, self.band.half_width, self.deadline) else {
+            return Ok(refit);
+        };
+        let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
+        Ok(if sse(&grown) < sse(&refit) { grown } else { refit })
     }
     fn candidates(&self, model: &MotionModel) -> Vec<Candidate> {
         let Ok(raw) = model.simulate_mm(&self.data) else {
