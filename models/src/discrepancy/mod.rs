@@ -747,11 +747,11 @@ fn reduce_nested<D: Domain>(domain: &D, y: &[f64], effects: &mut [Effect], curre
             continue;
         }
         // Where the refit fails, the limit as compared (it explains the record as well, by the test above).
-        let reduced = if domain.refit_contribution() { Some(compared) } else { refit().or(Some(compared)) };
-        if let Some((m, r1)) = reduced.and_then(|m| simulated_residual(domain, y, &m).map(|r1| (m, r1))) {
+        let reduced = if domain.refit_contribution() { compared } else { refit().unwrap_or(compared) };
+        if let Some(r1) = simulated_residual(domain, y, &reduced) {
             effects[i].name = simpler.to_string();
             effects[i].evidence.insert("reduced_to_nested".into(), 1.0);
-            *current = m;
+            *current = reduced;
             *r_cur = r1;
         }
     }

@@ -25,6 +25,7 @@ use crate::ModelError;
 use axis::DEFAULT_STRIBECK_V_M_S;
 pub use axis::{AxisPlant, MotionEffects};
 use serde::{Deserialize, Serialize};
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -684,6 +685,9 @@ pub struct MotionDomain {
     band: MissBand,
     /// The slow spans compared by their statistics ([`stick_slip::slow_spans`]).
     spans: Vec<(usize, usize)>,
+    /// Lone fits [`Domain::join`] made, by start and candidate: a join is tried once
+    /// as it is and once per swap, each from the same lone fit.
+    lone: RefCell<Vec<(MotionModel, Ranked, Option<MotionModel>)>>,
 }
 
 impl MotionDomain {
@@ -693,7 +697,28 @@ impl MotionDomain {
         data.check()?;
         let spans = stick_slip::slow_spans(&data.t_s, &data.cmd_mm);
         let band = sensor_sigma.map_or_else(|| data.miss_band(), |s| data.miss_band_of(s, SigmaSource::Given));
-        Ok(Self { data, deadline: None, band, spans })
+        Ok(Self { data, deadline: None, band, spans, lone: RefCell::default() })
+    }
+
+    /// [`Domain::augment`] of `start` with `effect`, made once per start and candidate.
+    fn lone_fit(&self, start: &MotionModel, effect: &Ranked) -> Option<MotionModel> {
+        if let Some((.., fit)) = self.lone.borrow().iter().find(|(s, r, _)| s == start && r == effect) {
+            return *fit;
+        }
+        let fit = self.augment(start, effect).ok();
+        self.lone.borrow_mut().push((*start, effect.clone(), fit));
+        fit
+    }
+
+    /// Whichever of `a` and `b` leaves the smaller output SSE (`b` on a tie; a model
+    /// that fails to simulate counts as infinitely far).
+    fn lower_sse(&self, a: MotionModel, b: MotionModel) -> MotionModel {
+        let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
+        if sse(&a) < sse(&b) {
+            a
+        } else {
+            b
+        }
     }
 
     /// Whether every reading lies within the domain's band of `model`'s.
@@ -800,8 +825,7 @@ impl Domain for MotionDomain {
         let Ok(grown) = identify_grown(&self.data, &m, &effects, self.band.half_width, self.deadline) else {
             return Ok(refit);
         };
-        let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
-        Ok(if sse(&grown) < sse(&refit) { grown } else { refit })
+        Ok(self.lower_sse(grown, refit))
     }
     fn candidates(&self, model: &MotionModel) -> Vec<Candidate> {
         let Ok(raw) = model.simulate_mm(&self.data) else {
@@ -864,7 +888,7 @@ impl Domain for MotionDomain {
         // joined: the named effects are refitted with it held at its lone fit (which
         // also fixed J_M without them), then everything together from there.
         let e = MotionEffect::from_name(&effect.name)?;
-        let alone = self.augment(start, effect).ok()?;
+        let alone = self.lone_fit(start, effect)?;
         let size = e.get(&alone.effects).iter().zip(e.scales(&alone)).map(|(v, s)| (v / s).powi(2)).sum::<f64>().sqrt();
         if size < 1.0 {
             return None;
@@ -893,8 +917,7 @@ impl Domain for MotionDomain {
         let Ok(fresh) = identify_grown(&self.data, &afresh, &named, self.band.half_width, self.deadline) else {
             return Some(from_fit);
         };
-        let sse = |m: &MotionModel| output_sse(&self.data, m).unwrap_or(f64::INFINITY);
-        Some(if sse(&fresh) < sse(&from_fit) { fresh } else { from_fit })
+        Some(self.lower_sse(fresh, from_fit))
     }
     fn join_in_place(&self, current: &MotionModel, start: &MotionModel, effect: &Ranked, named: &str, rival: &str) -> Option<MotionModel> {
         // Only a Stribeck rival: its grown fit is what a missing effect spoils (a
