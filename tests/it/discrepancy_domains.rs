@@ -161,7 +161,7 @@ const OFF_CENTRE_MOTION_SEEDS: [u64; 2] = [7535, 7536];
 /// The criteria on sets whose true J_M is drawn around 0.7× and 1.3× the prior (the
 /// same seeds centred are in the untouched list).
 #[test]
-#[ignore = "fails the criteria on three of the four sets (Stribeck + belt-compliance pairs blank, a pair half-named, as on the centred seeds; issue #27 open); figures in docs/discrepancy-domains.md; ~3 min in a release test binary on 2 cores; run with --ignored"]
+#[ignore = "fails the criteria on two of the four sets (Stribeck + belt-compliance pairs blank, a pair missed, as on the centred seeds; issue #27 open); figures in docs/discrepancy-domains.md; ~3 min in a release test binary on 2 cores; run with --ignored"]
 fn motion_hidden_set_drawn_off_the_prior_meets_the_criteria() {
     check_every([0.7, 1.3].into_iter().flat_map(|centre| {
         OFF_CENTRE_MOTION_SEEDS.into_iter().map(move |seed| {
@@ -387,6 +387,21 @@ fn a_term_the_gate_drops_beside_a_stick_slip_fit_leaves_it_grown_again() {
     let (_, r) = &small_set_case(35, "stribeck+belt_compliance-n3um-0");
     assert_eq!(effect_names(r), ["stribeck", "belt_compliance"], "{r:?}");
     assert_eq!(r.not_significant.iter().map(|e| e.name.as_str()).collect::<Vec<_>>(), ["viscous_friction"], "{r:?}");
+    assert!(r.after.gap_rms < 0.5 * r.before.gap_rms, "gap {} -> {}", r.before.gap_rms, r.after.gap_rms);
+}
+
+/// A Stribeck + belt pair (1 µm noise, development seed 21) where three effects were
+/// named before the belt could be joined (`max_effects` = 3 full): the smallest, below the
+/// gate's size margin, makes room, is listed `not_significant`, and the belt is joined;
+/// the gap on the stick–slip statistics at least halved.
+#[test]
+fn a_named_effect_below_the_size_margin_makes_room_for_a_join() {
+    let (_, r) = &small_set_case(21, "stribeck+belt_compliance-n1um-0");
+    let mut names = effect_names(r);
+    names.sort_unstable();
+    assert_eq!(names, ["belt_compliance", "stribeck"], "{r:?}");
+    assert!(r.effects.iter().any(|e| e.evidence.get("joined") == Some(&1.0)), "{r:?}");
+    assert!(!r.not_significant.is_empty(), "{r:?}");
     assert!(r.after.gap_rms < 0.5 * r.before.gap_rms, "gap {} -> {}", r.before.gap_rms, r.after.gap_rms);
 }
 

@@ -46,7 +46,8 @@
 //! residual still leaves the noise band or the domain's miss band (or a named effect
 //! with rivals is too small beside it for the gate), one joint refit of a masked
 //! effect (`join`, also with a named effect's rival or close runner-up in its place,
-//! `join_in_place`), after which
+//! `join_in_place`; with `max_effects` named, the smallest named effect below the
+//! gate's size margin makes room, `best_join`), after which
 //! every named effect with rivals is refitted afresh beside the joined one likewise;
 //! then every named effect must earn its name at the final model
 //! ([`gate`]: contribution against the noise, confidence region excluding zero,
@@ -163,6 +164,11 @@ pub trait Domain {
     /// where the domain has no such refit (the default), declines it, or it fails.
     fn join(&self, _current: &Self::Model, _start: &Self::Model, _effect: &Ranked) -> Option<Self::Model> {
         None
+    }
+    /// Whether the domain has [`Domain::join`] (a named effect then makes room for it
+    /// where `max_effects` are named). The default: no.
+    fn joins(&self) -> bool {
+        false
     }
     /// [`Domain::join`] with the named effect `named` replaced by `rival`, its rival or a
     /// contender it beat by less than [`DECISIVE_BIC`] in its round (from the rival's own
@@ -334,6 +340,13 @@ pub struct MissBand {
     pub sigma: f64,
     /// Where that σ comes from.
     pub sigma_from: SigmaSource,
+}
+
+impl MissBand {
+    /// Whether a reading of `residual` lies outside the band (or is not a number).
+    pub fn missed_by(&self, residual: &[f64]) -> bool {
+        residual.iter().any(|v| !(v.abs() <= self.half_width))
+    }
 }
 
 /// Where a [`MissBand`]'s σ comes from.
@@ -577,70 +590,68 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     // effects' own fast content as noise (motion's stick–slip with a soft belt) hides
     // the disagreement the named effect leaves. Due likewise where a reading lies outside
     // the domain's miss band (read from the sensor, not from σ̂).
-    let too_small = || {
-        let sim = domain.simulate(&current);
-        let bar = gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim);
-        effects.iter().filter(|e| !domain.rivals(&e.name).is_empty()).any(|e| gate::switched_off_rms(domain, &current, &sim, &e.name) < bar)
-    };
-    let misses_band = || domain.miss_band().is_some_and(|b| r_cur.iter().any(|v| !(v.abs() <= b.half_width)));
-    let join_due =
-        !effects.is_empty() && effects.len() < opts.max_effects() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || misses_band() || too_small());
+    let mut not_significant = Vec::new();
+    let sim_cur = domain.simulate(&current);
+    let bar = gate::CONTRIBUTION_MARGIN * domain.gap_rms(&y, &sim_cur);
+    let sizes: Vec<f64> = effects.iter().map(|e| gate::switched_off_rms(domain, &current, &sim_cur, &e.name)).collect();
+    let too_small = effects.iter().zip(&sizes).any(|(e, s)| !domain.rivals(&e.name).is_empty() && *s < bar);
+    let misses_band = domain.miss_band().is_some_and(|b| b.missed_by(&r_cur));
+    let disagrees = !effects.is_empty() && (!stats::windows(&r_cur, sigma, &time_s).is_empty() || misses_band || too_small);
+    // With `max_effects` named, the smallest named effect makes room for the join where
+    // it is below the gate's size margin (the gate would drop it): the rest is refitted
+    // without it and the joins tried from there; it is listed `not_significant` only if
+    // a join is kept.
+    let room = (effects.len() >= opts.max_effects() && domain.joins())
+        .then(|| sizes.iter().enumerate().filter(|(_, s)| **s < bar).min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i))
+        .flatten();
+    let join_due = disagrees && (effects.len() < opts.max_effects() || room.is_some());
     if join_due && stopped.is_none() {
         stopped = watch.stopped(&at.borrow(), &["joint refit", "twin check"]);
     }
     if join_due && stopped.is_none() {
         let ranked = ranking.as_deref().unwrap_or_default();
-        let width = |n: &str| ranked_width(domain, ranked, n);
-        let named = |n: &str| effects.iter().any(|e| e.name == n);
-        // Each join as it is and with a named effect's rival or runner-up (not named) in its place.
-        let swaps: Vec<Option<(usize, &str)>> = std::iter::once(None)
-            .chain(effects.iter().enumerate().flat_map(|(i, e)| {
-                let close = runner_ups.get(&e.name).into_iter().flatten().map(String::as_str);
-                let mut to: Vec<&str> = Vec::new();
-                for v in domain.rivals(&e.name).iter().copied().chain(close) {
-                    if !named(v) && !to.contains(&v) {
-                        to.push(v);
-                    }
-                }
-                to.into_iter().map(move |v| Some((i, v)))
-            }))
-            .collect();
-        let best = ranked
-            .iter()
-            .filter(|r| !effects.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
-            .flat_map(|r| swaps.iter().map(move |s| (r, *s)))
-            .filter(|(r, swap)| swap.is_none_or(|(_, v)| v != r.name))
-            .filter_map(|(r, swap)| {
-                if watch.expired() {
-                    return None;
-                }
-                let k = width(&r.name);
-                let (m, k, bar) = match swap {
-                    None => {
-                        announce(format!("joint refit of `{}` with the named effects", r.name));
-                        (domain.join(&current, &start, r)?, k, 0.0)
-                    }
-                    Some((i, rival)) => {
-                        let was = &effects[i].name;
-                        announce(format!("joint refit of `{}` with the named effects, `{rival}` in place of `{was}`", r.name));
-                        // A rival replaces a named effect only on a decisive BIC fall (as beside a join).
-                        (domain.join_in_place(&current, &start, r, was, rival)?, k + width(rival) - width(was), -DECISIVE_BIC)
-                    }
+        // The named effects, model and residual the joins start from, and the effect that made room.
+        let from = match room {
+            None => Some((effects.clone(), current.clone(), r_cur.clone(), None)),
+            Some(i) => {
+                let name = effects[i].name.clone();
+                announce(format!("refitting the named effects without `{name}` to make room for a joint refit"));
+                let gates = gate::check(domain, &current, &effects.iter().map(|e| e.name.clone()).collect::<Vec<_>>(), &y, sigma, opts.alpha());
+                let dropped = NotSignificant {
+                    name: name.clone(),
+                    reasons: gates[i].reasons(),
+                    parameters: domain.effect_parameters(&current, &name),
+                    gate: gates[i].clone(),
                 };
-                let (m, r1, d) = confirmed(domain, &y, &r_cur, m, k, bar)?;
-                Some((r, swap, m, r1, d))
-            })
-            .min_by(|a, b| a.4.total_cmp(&b.4));
-        if let Some((r, swap, m, r1, d)) = best {
-            if let Some((i, rival)) = swap {
-                effects[i].evidence.insert("swapped_for_rival".into(), 1.0);
-                effects[i].name = rival.to_string();
+                domain.remove(&current, &name).ok().and_then(|m| {
+                    let r = simulated_residual(domain, &y, &m)?;
+                    let mut rest = effects.clone();
+                    rest.remove(i);
+                    Some((rest, m, r, Some(dropped)))
+                })
             }
-            let mut ev = evidence(r, &r_cur, &r1, d);
+        };
+        let joined = from.and_then(|(mut named, m0, r0, dropped)| {
+            // The effect that made room is not joined back.
+            let pool: Vec<Ranked> = ranked.iter().filter(|r| dropped.as_ref().is_none_or(|d| d.name != r.name)).cloned().collect();
+            let j = best_join(domain, &y, &pool, &runner_ups, &named, &m0, &start, &r0, &|s| {
+                announce(s);
+                !watch.expired()
+            })?;
+            if let Some((i, rival)) = j.swap {
+                named[i].evidence.insert("swapped_for_rival".into(), 1.0);
+                named[i].name = rival;
+            }
+            let mut ev = evidence(&j.effect, &r0, &j.residual, j.delta_bic);
             ev.insert("joined".into(), 1.0);
-            effects.push(Effect { name: r.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });
+            named.push(Effect { name: j.effect.name.clone(), evidence: ev, parameters: BTreeMap::new(), gate: None });
+            Some((named, j.model, j.residual, dropped))
+        });
+        if let Some((named, m, r1, dropped)) = joined {
+            effects = named;
             current = m;
             r_cur = r1;
+            not_significant.extend(dropped);
             let all = effects.len();
             refit_beside(&mut effects, all, &mut current, &mut r_cur, "the joined effect");
         }
@@ -657,7 +668,6 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
     }
     // Every named effect must earn its name at the final model (size, confidence,
     // physics); the weakest failing one is dropped and the rest refitted, until all pass.
-    let mut not_significant = Vec::new();
     while !effects.is_empty() {
         announce(format!("gate: {} named effect(s)", effects.len()));
         let names: Vec<String> = effects.iter().map(|e| e.name.clone()).collect();
@@ -715,6 +725,80 @@ pub fn run<D: Domain>(domain: &D, model: Option<D::Model>, opts: &ValidSelectOpt
         model_after: current,
         report,
     })
+}
+
+/// A joint refit that confirmed ([`best_join`]).
+struct Join<M> {
+    /// The joined effect.
+    effect: Ranked,
+    /// The named effect (index) replaced and the rival in its place, if any.
+    swap: Option<(usize, String)>,
+    /// The joined model, its residual and BIC change.
+    model: M,
+    residual: Vec<f64>,
+    delta_bic: f64,
+}
+
+/// The best joint refit ([`Domain::join`]) of a ranked effect (neither named nor a named
+/// effect's rival) with the `named` effects of `current`, as they are or with one named
+/// effect's rival or close runner-up in its place ([`Domain::join_in_place`], on a
+/// decisive BIC fall), confirmed against `r_cur`: the effect, the swap (named index,
+/// rival), the model, its residual and BIC change. `go` announces each refit and says
+/// whether time is left for it.
+#[allow(clippy::too_many_arguments)] // the workflow's state the joins start from
+fn best_join<D: Domain>(
+    domain: &D,
+    y: &[f64],
+    ranked: &[Ranked],
+    runner_ups: &BTreeMap<String, Vec<String>>,
+    named: &[Effect],
+    current: &D::Model,
+    start: &D::Model,
+    r_cur: &[f64],
+    go: &dyn Fn(String) -> bool,
+) -> Option<Join<D::Model>> {
+    let width = |n: &str| ranked_width(domain, ranked, n);
+    let is_named = |n: &str| named.iter().any(|e| e.name == n);
+    // Each join as it is and with a named effect's rival or runner-up (not named) in its place.
+    let swaps: Vec<Option<(usize, &str)>> = std::iter::once(None)
+        .chain(named.iter().enumerate().flat_map(|(i, e)| {
+            let close = runner_ups.get(&e.name).into_iter().flatten().map(String::as_str);
+            let mut to: Vec<&str> = Vec::new();
+            for v in domain.rivals(&e.name).iter().copied().chain(close) {
+                if !is_named(v) && !to.contains(&v) {
+                    to.push(v);
+                }
+            }
+            to.into_iter().map(move |v| Some((i, v)))
+        }))
+        .collect();
+    ranked
+        .iter()
+        .filter(|r| !named.iter().any(|e| e.name == r.name || domain.rivals(&e.name).contains(&r.name.as_str())))
+        .flat_map(|r| swaps.iter().map(move |s| (r, *s)))
+        .filter(|(r, swap)| swap.is_none_or(|(_, v)| v != r.name))
+        .filter_map(|(r, swap)| {
+            let k = width(&r.name);
+            let (m, k, bar) = match swap {
+                None => {
+                    if !go(format!("joint refit of `{}` with the named effects", r.name)) {
+                        return None;
+                    }
+                    (domain.join(current, start, r)?, k, 0.0)
+                }
+                Some((i, rival)) => {
+                    let was = &named[i].name;
+                    if !go(format!("joint refit of `{}` with the named effects, `{rival}` in place of `{was}`", r.name)) {
+                        return None;
+                    }
+                    // A rival replaces a named effect only on a decisive BIC fall (as beside a join).
+                    (domain.join_in_place(current, start, r, was, rival)?, k + width(rival) - width(was), -DECISIVE_BIC)
+                }
+            };
+            let (m, r1, d) = confirmed(domain, y, r_cur, m, k, bar)?;
+            Some(Join { effect: r.clone(), swap: swap.map(|(i, v)| (i, v.to_string())), model: m, residual: r1, delta_bic: d })
+        })
+        .min_by(|a, b| a.delta_bic.total_cmp(&b.delta_bic))
 }
 
 /// Every named effect that nests a simpler one ([`Domain::reduce`]) must show its

@@ -723,7 +723,7 @@ impl MotionDomain {
 
     /// Whether every reading lies within the domain's band of `model`'s.
     fn explains(&self, model: &MotionModel) -> bool {
-        model.predict_mm(&self.data).is_ok_and(|y| self.data.first_miss(&y, self.band.half_width, 0..y.len()).is_none())
+        model.predict_mm(&self.data).is_ok_and(|y| !self.band.missed_by(&super::residual(&self.data.meas_mm, &y)))
     }
 }
 
@@ -882,6 +882,9 @@ impl Domain for MotionDomain {
             Some(MotionEffect::Stribeck) => &["coulomb_friction"],
             _ => &[],
         }
+    }
+    fn joins(&self) -> bool {
+        true
     }
     fn join(&self, current: &MotionModel, start: &MotionModel, effect: &Ranked) -> Option<MotionModel> {
         // Only an effect whose lone fit reaches its typical magnitude (its scale) is
